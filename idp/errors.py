@@ -1,0 +1,27 @@
+"""Errors raised for bad input: each names what is wrong and where (file, element, field)."""
+
+from __future__ import annotations
+
+
+class IdpError(Exception):
+    """Base class of every error idp raises on purpose."""
+
+
+class MeshError(IdpError):
+    """A mesh file or mesh array is unusable (unreadable, non-manifold, inverted, NaN, ...)."""
+
+
+class SceneError(IdpError):
+    """A scene file or scene description is invalid; the message names the key path."""
+
+
+class IntersectingInputError(IdpError):
+    """The start state has intersecting surface primitives and preservation was not asked for."""
+
+
+class CertificateError(IdpError):
+    """An accepted frame failed the independent injectivity check (must never happen)."""
+
+
+class SolverError(IdpError):
+    """The nonlinear or linear solver could not continue (e.g. non-finite values)."""
