@@ -1,0 +1,104 @@
+"""A small Wavefront OBJ reader (vertices and faces only).
+
+meshio refuses OBJ files whose ``vt``/``vn`` counts differ from the ``v`` count, which is
+common for textured models, so idp reads OBJ itself: ``v`` and ``f`` lines are used,
+everything else (``vt``, ``vn``, ``g``, ``o``, ``s``, ``usemtl``, ``mtllib``, comments) is
+ignored. Polygons are fan-triangulated.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from idp.errors import MeshError
+from idp.mesh.types import SurfaceMesh
+
+
+def _fail(path: Path, lineno: int, msg: str) -> MeshError:
+    return MeshError(f"{path}:{lineno}: {msg}")
+
+
+def read_obj(path: str | os.PathLike) -> SurfaceMesh:
+    """Read the triangle surface of an OBJ file; errors name the file and line number."""
+    p = Path(path)
+    if not p.is_file():
+        raise MeshError(f"mesh file not found: {p}")
+    try:
+        text = p.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise MeshError(f"cannot read mesh file {p}: {exc}") from exc
+
+    coords: list[float] = []
+    tri_a: list[int] = []
+    tri_b: list[int] = []
+    tri_c: list[int] = []
+    tri_line: list[int] = []
+    num_polygons = 0
+    nv = 0
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if not line or line[0] not in "vf":
+            continue
+        parts = line.split()
+        if not parts:
+            continue
+        tag = parts[0]
+        if tag == "v":
+            if len(parts) < 4:
+                raise _fail(p, lineno, f"vertex needs 3 coordinates: {line.strip()!r}")
+            try:
+                coords.extend((float(parts[1]), float(parts[2]), float(parts[3])))
+            except ValueError:
+                raise _fail(p, lineno, f"bad number in vertex line: {line.strip()!r}") from None
+            nv += 1
+        elif tag == "f":
+            idx: list[int] = []
+            for tok in parts[1:]:
+                head = tok.split("/", 1)[0]
+                try:
+                    k = int(head)
+                except ValueError:
+                    raise _fail(p, lineno, f"bad vertex index {tok!r} in face") from None
+                if k > 0:
+                    idx.append(k - 1)
+                elif k < 0:
+                    if nv + k < 0:
+                        raise _fail(
+                            p, lineno, f"relative index {k} refers before the first vertex "
+                            f"({nv} vertices read so far)"
+                        )
+                    idx.append(nv + k)
+                else:
+                    raise _fail(p, lineno, "vertex index 0 is invalid (OBJ indices start at 1)")
+            if len(idx) < 3:
+                raise _fail(p, lineno, f"face with {len(idx)} vertices (needs at least 3)")
+            num_polygons += 1
+            first = idx[0]
+            for j in range(1, len(idx) - 1):
+                tri_a.append(first)
+                tri_b.append(idx[j])
+                tri_c.append(idx[j + 1])
+                tri_line.append(lineno)
+
+    if not tri_a:
+        raise MeshError(f"{p}: no faces found in OBJ file")
+    vertices = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+    faces = np.stack(
+        [np.asarray(tri_a, np.int64), np.asarray(tri_b, np.int64), np.asarray(tri_c, np.int64)],
+        axis=1,
+    )
+    bad = np.flatnonzero((faces >= nv).any(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise _fail(
+            p, tri_line[i],
+            f"face index {int(faces[i].max()) + 1} out of range (file has {nv} vertices)",
+        )
+    return SurfaceMesh(
+        vertices=vertices,
+        faces=faces,
+        source=str(p),
+        extra={"num_polygons": num_polygons},
+    )
