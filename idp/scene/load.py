@@ -1,0 +1,333 @@
+"""Reading, validating, resolving and writing scene files (TOML or JSON)."""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import os
+import re
+import sys
+import types
+import typing
+from pathlib import Path
+from typing import Any, Optional, Union
+
+from pydantic import BaseModel, ValidationError
+
+from idp.errors import SceneError
+from idp.scene.schema import MODELS, Scene
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = [
+    "load_scene",
+    "scene_from_dict",
+    "format_validation_error",
+    "resolved_scene_dict",
+    "dump_scene_toml",
+]
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_scene(path: Union[str, Path]) -> Scene:
+    """Read a ``.toml`` or ``.json`` scene, validate it and resolve paths against its folder.
+
+    The scene ``name`` defaults to the file stem.  Any problem raises :class:`SceneError`
+    whose message starts with the file name.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in (".toml", ".json"):
+        raise SceneError(f"{p}: unknown scene file extension '{p.suffix}' (expected .toml or .json)")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SceneError(f"{p}: cannot read scene file: {err}") from err
+    data: Any
+    if ext == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as err:
+            raise SceneError(f"{p}: TOML syntax error: {err}") from err
+    else:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise SceneError(
+                f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})"
+            ) from err
+    if not isinstance(data, dict):
+        raise SceneError(f"{p}: the top level must be a table/object (got {type(data).__name__})")
+    if "name" not in data:
+        data = {"name": p.stem, **data}
+    return scene_from_dict(data, base_dir=p.parent.absolute(), source=str(p))
+
+
+def _absolute(p: Path, base: Path) -> Path:
+    p = p.expanduser()
+    return Path(os.path.normpath(p if p.is_absolute() else base / p))
+
+
+def scene_from_dict(
+    data: dict[str, Any], base_dir: Optional[Path] = None, *, source: str = "scene"
+) -> Scene:
+    """Validate a scene given as plain data (as parsed from TOML/JSON).
+
+    Relative mesh paths are resolved against ``base_dir`` (or the working directory) and stored
+    absolute; every mesh file must exist.  A relative ``output.dir`` is resolved against
+    ``base_dir`` when given, else kept as is.  ``source`` prefixes every error line.
+    """
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: the top level must be a table/object (got {type(data).__name__})")
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as err:
+        raise SceneError(format_validation_error(err, source)) from err
+    base = Path(base_dir).absolute() if base_dir is not None else Path.cwd()
+    missing = []
+    for i, ob in enumerate(scene.objects):
+        if ob.mesh is not None:
+            ob.mesh = _absolute(ob.mesh, base)
+            if not ob.mesh.is_file():
+                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
+    if missing:
+        raise SceneError("\n".join(missing))
+    if base_dir is not None:
+        scene.output.dir = _absolute(scene.output.dir, base)
+    return scene
+
+
+# ---------------------------------------------------------------------------------------------
+# Error formatting
+
+
+def _unwrap(tp: Any) -> Any:
+    """Strip Annotated and Optional; a multi-member union is returned as is."""
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is typing.Annotated:
+            tp = typing.get_args(tp)[0]
+        elif origin is Union or origin is getattr(types, "UnionType", Union):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            if len(args) != 1:
+                return tp
+            tp = args[0]
+        else:
+            return tp
+
+
+def _is_model(tp: Any) -> bool:
+    return isinstance(tp, type) and issubclass(tp, BaseModel)
+
+
+def _walk(root: Any, loc: tuple[Union[str, int], ...]) -> tuple[list[Union[str, int]], Any]:
+    """Turn a pydantic location into key-path parts (dropping union tags).
+
+    Returns the parts and the model class in which the last key was looked up (or None).
+    """
+    parts: list[Union[str, int]] = []
+    tp: Any = root
+    last_model: Any = None
+    for item in loc:
+        tp = _unwrap(tp)
+        if isinstance(item, int):
+            parts.append(item)
+            args = typing.get_args(tp) if typing.get_origin(tp) is list else ()
+            tp = args[0] if args else None
+            continue
+        if _is_model(tp):
+            parts.append(item)
+            last_model = tp
+            field = tp.model_fields.get(item)
+            tp = field.annotation if field is not None else None
+            continue
+        members = [m for m in typing.get_args(tp) if _is_model(_unwrap(m))] if tp is not None else []
+        if members:  # a discriminated-union tag such as 'ball'
+            match = [
+                _unwrap(m) for m in members
+                if "shape" in _unwrap(m).model_fields and _unwrap(m).model_fields["shape"].default == item
+            ]
+            tp = match[0] if match else None
+            continue
+        if not item.isidentifier() or item in ("float", "int", "str", "bool", "list", "dict"):
+            continue  # a union-member tag ('float', 'list[float]', 'literal[...]', ...)
+        parts.append(item)
+        tp = None
+    return parts, last_model
+
+
+def _path_str(parts: list[Union[str, int]]) -> str:
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+    return out
+
+
+def _join(base: str, sub: str) -> str:
+    if not sub:
+        return base
+    if not base:
+        return sub
+    return base + sub if sub.startswith("[") else f"{base}.{sub}"
+
+
+def _show(v: Any) -> str:
+    """A value as it would appear in a scene file (short)."""
+    if isinstance(v, bool):
+        s = "true" if v else "false"
+    elif isinstance(v, str):
+        s = json.dumps(v, ensure_ascii=False)
+    elif isinstance(v, float) and not math.isfinite(v):
+        s = repr(v)
+    elif isinstance(v, (int, float)):
+        s = repr(v)
+    else:
+        try:
+            s = json.dumps(v, ensure_ascii=False, default=str)
+        except (TypeError, ValueError):
+            s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _message(err: Any, last_model: Any, key: Any) -> str:
+    """Human message for one pydantic error (without its path)."""
+    t = err["type"]
+    ctx = err.get("ctx") or {}
+    got = f" (got {_show(err.get('input'))})"
+    if t == "missing":
+        return "required key is missing"
+    if t == "extra_forbidden":
+        hint = ""
+        if last_model is not None and isinstance(key, str):
+            close = difflib.get_close_matches(key, list(last_model.model_fields), n=1, cutoff=0.6)
+            if close:
+                hint = f" (did you mean '{close[0]}'?)"
+        return f"unknown key{hint}"
+    bounds = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="),
+              "less_than": ("lt", "<"), "less_than_equal": ("le", "<=")}
+    if t in bounds:
+        k, op = bounds[t]
+        return f"must be {op} {_show(ctx.get(k))}{got}"
+    if t in ("int_type", "int_parsing", "int_from_float"):
+        return f"must be an integer{got}"
+    if t in ("float_type", "float_parsing"):
+        return f"must be a number{got}"
+    if t == "finite_number":
+        return f"must be a finite number{got}"
+    if t in ("bool_type", "bool_parsing"):
+        return f"must be true or false{got}"
+    if t == "string_type":
+        return f"must be a string{got}"
+    if t == "string_too_short":
+        return "must not be empty"
+    if t in ("list_type", "tuple_type"):
+        return f"must be a list{got}"
+    if t == "too_short":
+        return f"must have at least {ctx.get('min_length')} entries{got}"
+    if t == "too_long":
+        return f"must have at most {ctx.get('max_length')} entries{got}"
+    if t in ("model_type", "model_attributes_type", "dict_type"):
+        return f"must be a table{got}"
+    if t == "literal_error":
+        return f"must be one of {ctx.get('expected')}{got}"
+    if t in ("path_type", "path_parsing"):
+        return f"must be a path string{got}"
+    if t == "union_tag_invalid":
+        return f"unknown shape {_show(ctx.get('tag'))}; expected one of: {ctx.get('expected_tags')}"
+    if t == "union_tag_not_found":
+        return "required key is missing (it selects the generator)"
+    if t == "value_error":
+        return str(ctx.get("error", err["msg"]))
+    msg = str(err.get("msg", t))
+    return msg[:1].lower() + msg[1:]
+
+
+def format_validation_error(err: ValidationError, source: str) -> str:
+    """One line per problem: ``SOURCE: objects[0].material.poisson_ratio: must be < 0.5 (got 0.5)``."""
+    root = MODELS.get(err.title, Scene)
+    lines: list[str] = []
+    for e in err.errors(include_url=False):
+        parts, last_model = _walk(root, tuple(e["loc"]))
+        path = _path_str(parts)
+        if e["type"] == "scene_rule":
+            for sub, msg in (e.get("ctx") or {}).get("problems", []):
+                lines.append(f"{source}: {_join(path, sub) or '(top level)'}: {msg}")
+            continue
+        if e["type"] in ("union_tag_invalid", "union_tag_not_found"):
+            path = _join(path, "shape")
+        msg = _message(e, last_model, parts[-1] if parts else None)
+        lines.append(f"{source}: {path or '(top level)'}: {msg}")
+    return "\n".join(dict.fromkeys(lines))
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+
+
+def resolved_scene_dict(scene: Scene) -> dict[str, Any]:
+    """The scene with every default filled in, as JSON/TOML-safe plain data (no nulls)."""
+    return scene.model_dump(mode="json", exclude_none=True)
+
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _key(k: str) -> str:
+    return k if _BARE_KEY.match(k) else json.dumps(k, ensure_ascii=False)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _is_table_array(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and all(isinstance(x, dict) for x in v)
+
+
+def _emit(table: dict[str, Any], prefix: str, out: list[str]) -> None:
+    """Write a table's plain keys, then its sub-tables and arrays of tables."""
+    for k, v in table.items():
+        if v is None or isinstance(v, dict) or _is_table_array(v):
+            continue
+        out.append(f"{_key(k)} = {_toml_value(v)}")
+    for k, v in table.items():
+        name = f"{prefix}.{_key(k)}" if prefix else _key(k)
+        if isinstance(v, dict):
+            out.append("")
+            out.append(f"[{name}]")
+            _emit(v, name, out)
+        elif _is_table_array(v):
+            for item in v:
+                out.append("")
+                out.append(f"[[{name}]]")
+                _emit(item, name, out)
+
+
+def dump_scene_toml(scene: Scene) -> str:
+    """The resolved scene as TOML text that :func:`load_scene` reads back to an equal scene."""
+    out = ["# idp scene, resolved: every default filled in"]
+    _emit(resolved_scene_dict(scene), "", out)
+    return "\n".join(out) + "\n"

@@ -1,0 +1,618 @@
+"""Scene description: pydantic v2 models that are both the file schema and the Python API.
+
+Every model forbids unknown keys. Rules that need several fields (or the scene's ``dim``)
+raise a ``scene_rule`` error whose context lists ``(sub-path, message)`` pairs, so that
+:func:`idp.scene.load.format_validation_error` can name the exact key.  Building a model
+directly in Python (``Scene(...)``, ``Material(...)``) raises :class:`idp.errors.SceneError`
+with the same one-line-per-problem message.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from idp.errors import SceneError
+
+# ---------------------------------------------------------------------------------------------
+# Scalar and vector types (strict: TOML/JSON `true` or "10" is never silently a number)
+
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
+PosFloat = Annotated[float, Strict(), Field(gt=0)]
+PosInt = Annotated[int, Strict(), Field(ge=1)]
+NonNegInt = Annotated[int, Strict(), Field(ge=0)]
+Name = Annotated[str, Field(min_length=1)]
+
+
+def _fixed_length(n: int) -> AfterValidator:
+    """Validator requiring a list of exactly ``n`` entries."""
+
+    def check(v: list[Any]) -> list[Any]:
+        if len(v) != n:
+            raise PydanticCustomError(
+                "vector_length",
+                "must have {expected} entries (got {actual})",
+                {"expected": n, "actual": len(v)},
+            )
+        return v
+
+    return AfterValidator(check)
+
+
+Vec2 = Annotated[list[Float], _fixed_length(2)]
+Vec3 = Annotated[list[Float], _fixed_length(3)]
+PosVec3 = Annotated[list[PosFloat], _fixed_length(3)]
+Res2 = Annotated[list[PosInt], _fixed_length(2)]
+Res3 = Annotated[list[PosInt], _fixed_length(3)]
+Scale = Union[Float, list[Float]]
+
+
+def rule_error(problems: list[tuple[str, str]]) -> PydanticCustomError:
+    """A cross-field error; each problem is ``(sub-path relative to the model, message)``."""
+    return PydanticCustomError(
+        "scene_rule",
+        "{message}",
+        {
+            "message": "; ".join(f"{p}: {m}" if p else m for p, m in problems),
+            "problems": [[p, m] for p, m in problems],
+        },
+    )
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_scale(v: Any) -> Any:
+    """Accept a positive number or a list of positive numbers (clear single message otherwise)."""
+    if _is_number(v):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"must be > 0 (got {v})")
+        return float(v)
+    if isinstance(v, (list, tuple)):
+        if len(v) == 0:
+            raise ValueError("must be a number or a non-empty list of numbers")
+        for i, x in enumerate(v):
+            if not _is_number(x):
+                raise ValueError(f"entry [{i}] must be a number (got {x!r})")
+            if not (math.isfinite(x) and x > 0):
+                raise ValueError(f"entry [{i}] must be > 0 (got {x})")
+        return [float(x) for x in v]
+    raise ValueError(f"must be a positive number or a list of positive numbers (got {v!r})")
+
+
+def _check_box(lo: list[float], hi: list[float], strict: bool) -> list[tuple[str, str]]:
+    """Problems with a box given by its corners (per-axis lo < hi, or lo <= hi)."""
+    if len(lo) != len(hi):
+        return [("hi", f"must have as many entries as lo ({len(lo)}, got {len(hi)})")]
+    bad = [i for i in range(len(lo)) if (lo[i] >= hi[i] if strict else lo[i] > hi[i])]
+    if bad:
+        op = "<" if strict else "<="
+        return [("hi", f"need lo {op} hi on every axis (axis {bad[0]}: lo={lo[bad[0]]}, hi={hi[bad[0]]})")]
+    return []
+
+
+class _Model(BaseModel):
+    """Base: unknown keys are errors, floats must be finite; construction raises SceneError."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    def __init__(self, /, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as err:
+            from idp.scene.load import format_validation_error
+
+            raise SceneError(format_validation_error(err, type(self).__name__)) from err
+
+    # Validation (model_validate, nested models) must keep pydantic's own path and not call this
+    # wrapper; the flag tells pydantic the override behaves like BaseModel.__init__.
+    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
+
+
+# ---------------------------------------------------------------------------------------------
+# Global sections
+
+
+class TimeConfig(_Model):
+    """Artificial time stepping."""
+
+    h: PosFloat = 0.0016
+    steps: PosInt = 60
+    stop_when_stationary: Bool = False
+    stationary_tol: PosFloat = 1e-5
+
+
+class SolverConfig(_Model):
+    """Projected Newton settings."""
+
+    newton_tol: PosFloat = 1e-2
+    max_newton_iterations: PosInt = 200
+    on_nonconvergence: Literal["warn", "error"] = "warn"
+    linear_solver: Literal["auto", "cholmod", "scipy"] = "auto"
+    check_every_iterate: Bool = False
+    inversion_eta: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.1
+
+
+class ContactConfig(_Model):
+    """IPC contact settings."""
+
+    enabled: Bool = True
+    dhat: PosFloat = 1e-3
+    dhat_mode: Literal["absolute", "relative"] = "absolute"
+    kappa: Union[Literal["auto"], float] = "auto"
+    adaptive_kappa: Bool = True
+    ccd: Literal["additive", "tight_inclusion"] = "additive"
+    broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
+    preserve_input_intersections: Bool = False
+
+    @field_validator("kappa", mode="before")
+    @classmethod
+    def _kappa(cls, v: Any) -> Any:
+        if v == "auto" and isinstance(v, str):
+            return v
+        if _is_number(v):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f'must be "auto" or a number > 0 (got {v})')
+            return float(v)
+        raise ValueError(f'must be "auto" or a number > 0 (got {v!r})')
+
+
+class OutputConfig(_Model):
+    """What to write and where."""
+
+    dir: Path = Path("out")
+    every: PosInt = 1
+    obj: Bool = True
+    vtu: Bool = True
+    png: Bool = True
+
+
+# ---------------------------------------------------------------------------------------------
+# Per-object sections
+
+
+class Material(_Model):
+    """Elastic material of a deformable object."""
+
+    model: Literal["neo_hookean", "symmetric_dirichlet"] = "neo_hookean"
+    youngs_modulus: PosFloat = 1e4
+    poisson_ratio: Annotated[float, Strict(), Field(gt=-1)] = 0.4
+    density: PosFloat = 1000.0
+    weight: Optional[PosFloat] = None
+
+    @field_validator("poisson_ratio")
+    @classmethod
+    def _nu(cls, v: float) -> float:
+        if v >= 0.5:
+            raise ValueError(
+                f"must be < 0.5 (got {v}): incompressible materials (nu >= 0.5) are not supported"
+            )
+        return v
+
+    @property
+    def mu(self) -> float:
+        """Lamé shear modulus E / (2 (1 + nu))."""
+        return self.youngs_modulus / (2.0 * (1.0 + self.poisson_ratio))
+
+    @property
+    def lam(self) -> float:
+        """Lamé first parameter E nu / ((1 + nu)(1 - 2 nu))."""
+        nu = self.poisson_ratio
+        return self.youngs_modulus * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+    @model_validator(mode="after")
+    def _weight(self) -> "Material":
+        if self.model == "symmetric_dirichlet":
+            if self.weight is None:
+                self.weight = self.mu / 4.0
+        elif self.weight is not None:
+            raise rule_error([("weight", "only used by model = \"symmetric_dirichlet\"")])
+        return self
+
+
+class RestShape(_Model):
+    """Rest-shape stretch and growth: factor after step k = scale * (1 + growth_rate * min(k, growth_steps))."""
+
+    scale: Scale = 1.0
+    growth_rate: Float = 0.0
+    growth_steps: NonNegInt = 0
+
+    @field_validator("scale", mode="before")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        return _check_scale(v)
+
+    @model_validator(mode="after")
+    def _growth(self) -> "RestShape":
+        if self.growth_steps == 0 and self.growth_rate != 0:
+            raise rule_error([("growth_rate", "has no effect unless growth_steps >= 1")])
+        final = 1.0 + self.growth_rate * self.growth_steps
+        if final <= 0:
+            raise rule_error([(
+                "growth_rate",
+                f"makes the rest-shape factor 1 + growth_rate * growth_steps = {final:g} <= 0 "
+                f"(need growth_rate > {-1.0 / self.growth_steps:g} for growth_steps = {self.growth_steps})",
+            )])
+        return self
+
+    def factor(self, step: int) -> float:
+        """Growth multiplier applied to ``scale`` after ``step`` steps."""
+        return 1.0 + self.growth_rate * min(step, self.growth_steps)
+
+
+class FixedSelector(_Model):
+    """Pins vertices selected by an axis-aligned box or by explicit indices."""
+
+    box: Optional[list[list[Float]]] = None
+    relative: Bool = False
+    indices: Optional[Annotated[list[NonNegInt], Field(min_length=1)]] = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "FixedSelector":
+        if (self.box is None) == (self.indices is None):
+            raise rule_error([("", "give exactly one of `box` or `indices`")])
+        if self.indices is not None and self.relative:
+            raise rule_error([("relative", "only applies to `box`")])
+        if self.box is not None:
+            if len(self.box) != 2:
+                raise rule_error([("box", f"must be two corners [lo, hi] (got {len(self.box)} entries)")])
+            probs = _check_box(self.box[0], self.box[1], strict=False)
+            if probs:
+                raise rule_error([("box", probs[0][1])])
+        return self
+
+
+class Rotation(_Model):
+    """Rotation about the origin; ``axis`` only in 3D (2D rotates in the plane)."""
+
+    axis: Optional[list[Float]] = None
+    degrees: Float
+
+    @field_validator("axis")
+    @classmethod
+    def _nonzero(cls, v: Optional[list[float]]) -> Optional[list[float]]:
+        if v is not None and not any(x != 0 for x in v):
+            raise ValueError("must be non-zero")
+        return v
+
+
+# ---------------------------------------------------------------------------------------------
+# Procedural mesh generators (discriminated on `shape`)
+
+
+class _Generator(_Model):
+    """Base of the generators: ``dim`` and ``role`` ('volume' or 'surface') are class constants."""
+
+    dim: ClassVar[int]
+    role: ClassVar[str]
+    shape: str
+
+    def params(self) -> dict[str, Any]:
+        """Every generator parameter (all fields except ``shape``)."""
+        return self.model_dump(exclude={"shape"})
+
+
+class BallGen(_Generator):
+    """Tetrahedralised ball (3D volume)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "volume"
+    shape: Literal["ball"] = "ball"
+    radius: PosFloat = 0.5
+    center: Vec3 = [0.0, 0.0, 0.0]
+    resolution: PosInt = 6
+
+
+class EllipsoidGen(_Generator):
+    """Tetrahedralised ellipsoid (3D volume)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "volume"
+    shape: Literal["ellipsoid"] = "ellipsoid"
+    radii: PosVec3 = [0.5, 0.5, 0.5]
+    center: Vec3 = [0.0, 0.0, 0.0]
+    resolution: PosInt = 6
+
+
+class TetBoxGen(_Generator):
+    """Tetrahedralised box (3D volume)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "volume"
+    shape: Literal["tet_box"] = "tet_box"
+    lo: Vec3 = [-0.5, -0.5, -0.5]
+    hi: Vec3 = [0.5, 0.5, 0.5]
+    resolution: Res3 = [4, 4, 4]
+
+    @model_validator(mode="after")
+    def _box(self) -> "TetBoxGen":
+        if p := _check_box(self.lo, self.hi, strict=True):
+            raise rule_error(p)
+        return self
+
+
+class BoxSurfaceGen(_Generator):
+    """Closed triangulated box surface (3D obstacle)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "surface"
+    shape: Literal["box_surface"] = "box_surface"
+    lo: Vec3 = [-1.0, -1.0, -1.0]
+    hi: Vec3 = [1.0, 1.0, 1.0]
+    resolution: PosInt = 4
+
+    @model_validator(mode="after")
+    def _box(self) -> "BoxSurfaceGen":
+        if p := _check_box(self.lo, self.hi, strict=True):
+            raise rule_error(p)
+        return self
+
+
+class CylinderSurfaceGen(_Generator):
+    """Closed capped cylinder surface along y (3D obstacle)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "surface"
+    shape: Literal["cylinder_surface"] = "cylinder_surface"
+    radius: PosFloat = 0.5
+    y0: Float = -0.5
+    y1: Float = 0.5
+    segments: Annotated[int, Strict(), Field(ge=3)] = 32
+    rings: PosInt = 8
+    cap_rings: PosInt = 3
+
+    @model_validator(mode="after")
+    def _ys(self) -> "CylinderSurfaceGen":
+        if self.y1 <= self.y0:
+            raise rule_error([("y1", f"must be > y0 (got y0={self.y0}, y1={self.y1})")])
+        return self
+
+
+class HourglassSurfaceGen(_Generator):
+    """Closed hourglass surface along y: two bulbs joined by a neck (3D obstacle)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "surface"
+    shape: Literal["hourglass_surface"] = "hourglass_surface"
+    bulb_radius: PosFloat = 0.5
+    neck_radius: PosFloat = 0.15
+    lower_center: Float = 0.0
+    upper_center: Float = 1.6
+    segments: Annotated[int, Strict(), Field(ge=3)] = 32
+    rings: PosInt = 48
+
+    @model_validator(mode="after")
+    def _geom(self) -> "HourglassSurfaceGen":
+        probs = []
+        if self.neck_radius >= self.bulb_radius:
+            probs.append(("neck_radius", f"must be < bulb_radius ({self.bulb_radius}) (got {self.neck_radius})"))
+        if self.upper_center <= self.lower_center:
+            probs.append(("upper_center", f"must be > lower_center ({self.lower_center}) (got {self.upper_center})"))
+        if probs:
+            raise rule_error(probs)
+        return self
+
+
+class DiskGen(_Generator):
+    """Triangulated disk (2D volume)."""
+
+    dim: ClassVar[int] = 2
+    role: ClassVar[str] = "volume"
+    shape: Literal["disk"] = "disk"
+    radius: PosFloat = 0.5
+    center: Vec2 = [0.0, 0.0]
+    resolution: PosInt = 6
+
+
+class RectangleGen(_Generator):
+    """Triangulated rectangle (2D volume)."""
+
+    dim: ClassVar[int] = 2
+    role: ClassVar[str] = "volume"
+    shape: Literal["rectangle"] = "rectangle"
+    lo: Vec2 = [0.0, 0.0]
+    hi: Vec2 = [1.0, 1.0]
+    resolution: Res2 = [4, 4]
+
+    @model_validator(mode="after")
+    def _box(self) -> "RectangleGen":
+        if p := _check_box(self.lo, self.hi, strict=True):
+            raise rule_error(p)
+        return self
+
+
+class CirclePolygonGen(_Generator):
+    """Closed polygon approximating a circle (2D obstacle)."""
+
+    dim: ClassVar[int] = 2
+    role: ClassVar[str] = "surface"
+    shape: Literal["circle_polygon"] = "circle_polygon"
+    radius: PosFloat = 1.0
+    center: Vec2 = [0.0, 0.0]
+    segments: Annotated[int, Strict(), Field(ge=3)] = 64
+
+
+class BoxPolygonGen(_Generator):
+    """Closed rectangular polygon (2D obstacle), ``resolution`` segments per side."""
+
+    dim: ClassVar[int] = 2
+    role: ClassVar[str] = "surface"
+    shape: Literal["box_polygon"] = "box_polygon"
+    lo: Vec2 = [-1.0, -1.0]
+    hi: Vec2 = [1.0, 1.0]
+    resolution: PosInt = 4
+
+    @model_validator(mode="after")
+    def _box(self) -> "BoxPolygonGen":
+        if p := _check_box(self.lo, self.hi, strict=True):
+            raise rule_error(p)
+        return self
+
+
+GENERATORS: dict[str, type[_Generator]] = {
+    cls.model_fields["shape"].default: cls
+    for cls in (
+        BallGen, EllipsoidGen, TetBoxGen, BoxSurfaceGen, CylinderSurfaceGen, HourglassSurfaceGen,
+        DiskGen, RectangleGen, CirclePolygonGen, BoxPolygonGen,
+    )
+}
+"""Generator model per ``shape`` name."""
+
+Generate = Annotated[
+    Union[
+        BallGen, EllipsoidGen, TetBoxGen, BoxSurfaceGen, CylinderSurfaceGen, HourglassSurfaceGen,
+        DiskGen, RectangleGen, CirclePolygonGen, BoxPolygonGen,
+    ],
+    Field(discriminator="shape"),
+]
+
+
+def _shapes(dim: int, role: str) -> str:
+    return ", ".join(s for s, c in GENERATORS.items() if c.dim == dim and c.role == role)
+
+
+# ---------------------------------------------------------------------------------------------
+# Objects and scene
+
+
+class SceneObject(_Model):
+    """One mesh in the scene: a deformable body or a static closed obstacle."""
+
+    name: Name
+    kind: Literal["deformable", "obstacle"] = "deformable"
+    mesh: Optional[Path] = None
+    generate: Optional[Generate] = None
+    scale: Scale = 1.0
+    rotate: list[Rotation] = Field(default_factory=list)
+    translate: Optional[list[Float]] = None  # filled with zeros (dim entries) by Scene
+    material: Optional[Material] = None  # filled with Material() for deformables
+    rest_shape: Optional[RestShape] = None  # filled with RestShape() for deformables
+    fixed: list[FixedSelector] = Field(default_factory=list)
+
+    @field_validator("scale", mode="before")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        return _check_scale(v)
+
+    @model_validator(mode="after")
+    def _rules(self) -> "SceneObject":
+        probs: list[tuple[str, str]] = []
+        if self.mesh is None and self.generate is None:
+            probs.append(("mesh", "give exactly one of `mesh` (a file) or `generate` (a procedural shape)"))
+        elif self.mesh is not None and self.generate is not None:
+            probs.append(("generate", "give either `mesh` or `generate`, not both"))
+        if self.kind == "obstacle":
+            for key in ("material", "rest_shape"):
+                if getattr(self, key) is not None:
+                    probs.append((key, "only allowed on deformable objects (this object is an obstacle)"))
+            if self.fixed:
+                probs.append(("fixed", "only allowed on deformable objects (obstacles are fixed entirely)"))
+        if self.generate is not None:
+            gen = self.generate
+            want = "volume" if self.kind == "deformable" else "surface"
+            if gen.role != want:
+                what = "a volume mesh" if gen.role == "volume" else "a closed surface/polygon"
+                probs.append((
+                    "generate.shape",
+                    f"'{gen.shape}' makes {what}; {'a deformable' if want == 'volume' else 'an obstacle'} needs one of: "
+                    f"{_shapes(3, want)} (3D), {_shapes(2, want)} (2D)",
+                ))
+        if probs:
+            raise rule_error(probs)
+        if self.kind == "deformable":
+            if self.material is None:
+                self.material = Material()
+            if self.rest_shape is None:
+                self.rest_shape = RestShape()
+        return self
+
+
+class Scene(_Model):
+    """A complete scene: global settings plus objects."""
+
+    name: Name = "scene"
+    dim: Literal[2, 3] = 3
+    time: TimeConfig = Field(default_factory=TimeConfig)
+    solver: SolverConfig = Field(default_factory=SolverConfig)
+    contact: ContactConfig = Field(default_factory=ContactConfig)
+    output: OutputConfig = Field(default_factory=OutputConfig)
+    objects: list[SceneObject]
+
+    @model_validator(mode="after")
+    def _rules(self) -> "Scene":
+        d = self.dim
+        probs: list[tuple[str, str]] = []
+
+        def vec(path: str, v: Optional[list[float]]) -> None:
+            if v is not None and len(v) != d:
+                probs.append((path, f"must have {d} entries for dim = {d} (got {len(v)})"))
+
+        seen: dict[str, int] = {}
+        for i, ob in enumerate(self.objects):
+            p = f"objects[{i}]"
+            if ob.name in seen:
+                probs.append((f"{p}.name", f"duplicate name '{ob.name}' (also used by objects[{seen[ob.name]}])"))
+            else:
+                seen[ob.name] = i
+            if isinstance(ob.scale, list):
+                vec(f"{p}.scale", ob.scale)
+            vec(f"{p}.translate", ob.translate)
+            for j, rot in enumerate(ob.rotate):
+                if d == 2 and rot.axis is not None:
+                    probs.append((f"{p}.rotate[{j}].axis", "must be omitted in 2D (rotation is in the plane)"))
+                elif d == 3 and rot.axis is None:
+                    probs.append((f"{p}.rotate[{j}].axis", "required in 3D"))
+                else:
+                    vec(f"{p}.rotate[{j}].axis", rot.axis)
+            if ob.rest_shape is not None and isinstance(ob.rest_shape.scale, list):
+                vec(f"{p}.rest_shape.scale", ob.rest_shape.scale)
+            for j, sel in enumerate(ob.fixed):
+                if sel.box is not None:
+                    vec(f"{p}.fixed[{j}].box[0]", sel.box[0])
+                    vec(f"{p}.fixed[{j}].box[1]", sel.box[1])
+            if ob.generate is not None and ob.generate.dim != d:
+                probs.append((
+                    f"{p}.generate.shape",
+                    f"'{ob.generate.shape}' is a {ob.generate.dim}D shape but dim = {d}",
+                ))
+        if not any(ob.kind == "deformable" for ob in self.objects):
+            probs.append(("objects", "at least one deformable object is required"))
+        if probs:
+            raise rule_error(probs)
+        for ob in self.objects:
+            if ob.translate is None:
+                ob.translate = [0.0] * d
+        return self
+
+    def object(self, name: str) -> SceneObject:
+        """The object called ``name`` (KeyError if none)."""
+        for ob in self.objects:
+            if ob.name == name:
+                return ob
+        raise KeyError(name)
+
+
+MODELS: dict[str, type[BaseModel]] = {
+    c.__name__: c
+    for c in (
+        Scene, SceneObject, TimeConfig, SolverConfig, ContactConfig, OutputConfig, Material,
+        RestShape, FixedSelector, Rotation, *GENERATORS.values(),
+    )
+}
+"""Every scene model by class name (used to interpret error locations)."""
