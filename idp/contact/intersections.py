@@ -224,3 +224,22 @@ def surface_intersecting_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.nd
 def count_intersections(vertices: np.ndarray, faces: np.ndarray) -> int:
     """Number of intersecting primitive pairs of a triangle surface or 2D polyline."""
     return int(surface_intersecting_pairs(vertices, faces).shape[0])
+
+
+def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple[tuple[int, ...], tuple[int, ...]]]:
+    """The intersecting primitive pairs of a surface as vertex-id keys that do not depend on edge numbering:
+    ((sorted edge vertices), (sorted triangle vertices)) in 3D, ((segment a), (segment b)) sorted in 2D."""
+    from idp.mesh.surface import unique_edges
+
+    f = np.asarray(faces, dtype=np.int64)
+    pairs = surface_intersecting_pairs(vertices, f)
+    if len(pairs) == 0:
+        return set()
+    if f.shape[1] == 2:
+        a, b = np.sort(f[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
+        keys = {tuple(sorted((tuple(p), tuple(q)))) for p, q in zip(a.tolist(), b.tolist())}
+    else:
+        e = unique_edges(f)
+        a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
+        keys = {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist())}
+    return keys

@@ -1,0 +1,103 @@
+"""Independent per-frame certificate: no intersecting surface pairs, no inverted elements, min distance.
+
+It owns its own ipctk collision mesh (built separately from the solver's, without the solver's
+static-obstacle shortcut) so a solver bug cannot hide from it. When the input had intersections that
+the user asked to preserve (paper §5.5), the check lists every crossing (edge, triangle) pair and
+requires it to be one of the input's pairs: preserved crossings may stay, no new one may appear.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import ipctk
+import numpy as np
+
+from idp.mesh.quality import signed_volumes
+
+
+@dataclass
+class Certificate:
+    intersection_free: bool
+    inversion_free: bool
+    num_inverted: int
+    min_element_volume: float
+    min_distance: float          # smallest surface distance among pairs closer than ``distance_query``; inf if none
+    distance_query: float
+    preserved_pairs: int         # intersecting input pairs allowed to persist (paper §5.5)
+
+    @property
+    def ok(self) -> bool:
+        return self.intersection_free and self.inversion_free
+
+    def describe(self) -> str:
+        parts = []
+        if not self.intersection_free:
+            parts.append("surfaces intersect")
+        if not self.inversion_free:
+            parts.append(f"{self.num_inverted} inverted element(s), min volume {self.min_element_volume:.3e}")
+        return "; ".join(parts) or f"ok (min distance {self.min_distance:.3e})"
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["ok"] = self.ok
+        return out
+
+
+class Certifier:
+    """Checks a configuration x (n, d) of the whole scene."""
+
+    def __init__(
+        self,
+        positions: np.ndarray,
+        surface: np.ndarray | None,
+        element_sets: list[np.ndarray],
+        *,
+        distance_query: float,
+        require_inversion_free: bool = True,
+        preserved_pairs: set | None = None,
+    ):
+        self.dim = positions.shape[1]
+        self.element_sets = element_sets
+        self.require_inversion_free = require_inversion_free
+        self.distance_query = float(distance_query)
+        self.mesh = None
+        self.surface = None if surface is None else np.asarray(surface, dtype=np.int64)
+        self.preserved = set(preserved_pairs or ())
+        self.num_excluded = len(self.preserved)
+        if surface is not None and len(surface):
+            surface = np.asarray(surface, dtype=np.int32)
+            if self.dim == 3:
+                faces, edges = surface, ipctk.edges(surface)
+            else:
+                faces, edges = np.zeros((0, 3), dtype=np.int32), surface
+            self.mesh = ipctk.CollisionMesh.build_from_full_mesh(np.ascontiguousarray(positions, dtype=float), edges, faces)
+            self.to_full = np.asarray(self.mesh.to_full_vertex_id(), dtype=np.int64)
+
+    def check(self, x: np.ndarray) -> Certificate:
+        if not np.all(np.isfinite(x)):
+            return Certificate(False, False, -1, math.nan, math.nan, self.distance_query, self.num_excluded)
+        min_vol, n_inv = math.inf, 0
+        for el in self.element_sets:
+            vols = signed_volumes(x, el)
+            if vols.size:
+                min_vol = min(min_vol, float(vols.min()))
+                n_inv += int(np.count_nonzero(vols <= 0))
+        inversion_free = n_inv == 0 or not self.require_inversion_free
+        intersection_free, min_d = True, math.inf
+        if self.mesh is not None:
+            vs = np.ascontiguousarray(x[self.to_full], dtype=float)
+            if self.preserved:
+                from idp.contact.intersections import intersecting_pair_keys
+
+                now = intersecting_pair_keys(x, self.surface)
+                intersection_free = now <= self.preserved
+            else:
+                intersection_free = not ipctk.has_intersections(self.mesh, vs, ipctk.LBVH())
+            if intersection_free:
+                c = ipctk.NormalCollisions()
+                c.build(self.mesh, vs, self.distance_query, 0.0, ipctk.LBVH())
+                if len(c):
+                    min_d = math.sqrt(max(c.compute_minimum_distance(self.mesh, vs), 0.0))
+        return Certificate(intersection_free, inversion_free, n_inv, min_vol, min_d, self.distance_query, self.num_excluded)

@@ -1,0 +1,239 @@
+"""Turn a validated :class:`~idp.scene.schema.Scene` into a ready-to-step System (mesh → energies → contact)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from idp.contact.certificate import Certifier
+from idp.contact.model import ContactModel
+from idp.errors import IntersectingInputError, MeshError, SceneError
+from idp.energies.elastic import ElasticEnergy, lame_parameters
+from idp.energies.inertia import lumped_masses
+from idp.mesh import generate as gen
+from idp.mesh.io import read_mesh
+from idp.mesh.placement import place, select_in_box
+from idp.mesh.surface import boundary_faces, enclosed_volume, surface_topology
+from idp.mesh.types import SurfaceMesh, VolumeMesh
+from idp.output.parts import Part
+from idp.solver.newton import NewtonSettings
+from idp.stepper.run import RunSettings
+from idp.stepper.system import Body, RestShapeSchedule, System
+
+log = logging.getLogger("idp")
+
+GENERATORS = {
+    "ball": gen.tet_ball,
+    "ellipsoid": gen.tet_ellipsoid,
+    "tet_box": gen.tet_box,
+    "box_surface": gen.box_surface,
+    "cylinder_surface": gen.cylinder_surface,
+    "hourglass_surface": gen.hourglass_surface,
+    "disk": gen.tri_disk,
+    "rectangle": gen.tri_rectangle,
+    "circle_polygon": gen.polygon_circle,
+    "box_polygon": gen.polygon_box,
+}
+
+
+@dataclass
+class BuiltScene:
+    system: System
+    certifier: Certifier
+    newton: NewtonSettings
+    run: RunSettings
+    dhat: float
+    input_intersections: int
+    meta: dict
+
+
+def _load_object_mesh(obj, dim: int) -> VolumeMesh | SurfaceMesh:
+    want = "volume" if obj.kind == "deformable" else "surface"
+    if obj.generate is not None:
+        mesh = GENERATORS[obj.generate.shape](**obj.generate.params())
+    else:
+        mesh = read_mesh(obj.mesh, kind=want)
+    if want == "volume" and not isinstance(mesh, VolumeMesh):
+        raise MeshError(f"{mesh.source}: object {obj.name!r} is deformable but the mesh has no volume elements")
+    if want == "surface" and not isinstance(mesh, SurfaceMesh):
+        # an obstacle given as a volume mesh: use its boundary surface
+        mesh = SurfaceMesh(mesh.vertices, boundary_faces(mesh.elements), source=mesh.source)
+    if mesh.vertices.shape[1] != dim:
+        raise MeshError(f"{mesh.source}: object {obj.name!r} is {mesh.vertices.shape[1]}D but the scene is {dim}D")
+    return mesh
+
+
+def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
+    rots = [r.degrees if dim == 2 else (tuple(r.axis), r.degrees) for r in (obj.rotate or [])]
+    return place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+
+
+def _vector(v, dim: int) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    return np.full(dim, float(a)) if a.ndim == 0 else a
+
+
+def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | None = None) -> BuiltScene:
+    """Load/generate and place every object, pick pinned DOFs, set up energies, contact and the certificate.
+
+    Input that intersects is refused (IntersectingInputError naming the pairs) unless
+    ``contact.preserve_input_intersections`` is set, in which case those pairs are excluded from the
+    barrier, CCD and certificate, and every other pair stays guarded (paper §5.5)."""
+    dim = scene.dim
+    deformables, obstacles = [], []
+    for i, obj in enumerate(scene.objects):
+        try:
+            mesh = _load_object_mesh(obj, dim)
+        except MeshError as exc:
+            raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
+        verts = _place(obj, mesh.vertices, dim)
+        (deformables if obj.kind == "deformable" else obstacles).append((i, obj, mesh, verts))
+
+    # global numbering: deformables first, then obstacles (static)
+    chunks, parts, bodies = [], [], []
+    fixed = []
+    masses = []
+    surfaces = []
+    offset = 0
+    for i, obj, mesh, verts in deformables:
+        n = verts.shape[0]
+        ids = np.arange(offset, offset + n)
+        elements = mesh.elements + offset
+        surface = boundary_faces(mesh.elements) + offset
+        mat = obj.material
+        E, nu = mat.youngs_modulus, mat.poisson_ratio
+        lame_parameters(E, nu)  # validates the material before any heavy work
+        chunks.append(verts)
+        parts.append(Part(obj.name, "deformable", ids, elements, surface))
+        surfaces.append(surface)
+        rest = obj.rest_shape
+        sched = RestShapeSchedule(
+            _vector(rest.scale if rest else 1.0, dim),
+            float(rest.growth_rate) if rest else 0.0,
+            int(rest.growth_steps) if rest else 0,
+        )
+        bodies.append((obj, ids, elements, sched))
+        pinned = np.zeros(n, dtype=bool)
+        for j, sel in enumerate(obj.fixed or []):
+            if sel.indices is not None:
+                idx = np.asarray(sel.indices, dtype=np.int64)
+                if idx.size and idx.max() >= n:
+                    raise SceneError(f"objects[{i}].fixed[{j}].indices: index {int(idx.max())} out of range (mesh has {n} vertices)")
+                pinned[idx] = True
+            if sel.box is not None:
+                rel = (verts.min(axis=0), verts.max(axis=0)) if sel.relative else None
+                sel_idx = select_in_box(verts, np.asarray(sel.box[0], float), np.asarray(sel.box[1], float), relative_to=rel)
+                if sel_idx.size == 0:
+                    log.warning("objects[%d].fixed[%d]: the box selects no vertex", i, j)
+                pinned[sel_idx] = True
+        fixed.append(pinned)
+        offset += n
+    num_dynamic = offset
+    cage_volume = 0.0
+    for i, obj, mesh, verts in obstacles:
+        topo = surface_topology(mesh.faces, verts.shape[0])
+        if not topo.is_closed:
+            raise MeshError(
+                f"objects[{i}] ({obj.name}): obstacle surface {mesh.source} is not closed: "
+                f"{topo.num_boundary_edges} boundary edge(s), {topo.num_nonmanifold_edges} non-manifold edge(s)"
+            )
+        n = verts.shape[0]
+        ids = np.arange(offset, offset + n)
+        surface = mesh.faces + offset
+        chunks.append(verts)
+        parts.append(Part(obj.name, "obstacle", ids, None, surface))
+        surfaces.append(surface)
+        fixed.append(np.ones(n, dtype=bool))
+        cage_volume += abs(enclosed_volume(verts, mesh.faces))
+        offset += n
+
+    x = np.ascontiguousarray(np.vstack(chunks), dtype=float)
+    N = x.shape[0]
+    all_surface = np.vstack(surfaces).astype(np.int64)
+
+    masses = np.zeros(N)
+    energies = []
+    for obj, ids, elements, sched in bodies:
+        mat = obj.material
+        el = ElasticEnergy(mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio, weight=getattr(mat, "weight", None))
+        masses += lumped_masses(N, elements, el.volumes, mat.density)
+        energies.append(Body(obj.name, ids, el, sched))
+    pinned = np.concatenate(fixed)
+    free_mask = np.repeat(~pinned, dim)
+    if not free_mask.any():
+        raise SceneError("every vertex is fixed: nothing to deform")
+
+    # contact distance
+    diag = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+    c = scene.contact
+    dhat = c.dhat * diag if c.dhat_mode == "relative" else c.dhat
+
+    preserved: set = set()
+    n_pairs = 0
+    if c.enabled:
+        preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
+        contact = ContactModel(
+            x, all_surface, num_dynamic, dhat, ccd=c.ccd, broad_phase=c.broad_phase,
+            kappa=None if c.kappa == "auto" else float(c.kappa), adaptive_kappa=c.adaptive_kappa,
+        )
+        ev = contact.evaluate(x)
+        if ev.num_active and contact.min_distance(ev) <= 0.0:
+            raise IntersectingInputError("surfaces touch (zero distance) in the start state; separate them by a small gap")
+    else:
+        contact = None
+
+    meta = {"dhat": dhat, "dhat_mode": c.dhat_mode, "bbox_diagonal": diag, "cage_volume": cage_volume or None,
+            "num_vertices": N, "num_dynamic_vertices": num_dynamic,
+            "num_elements": int(sum(b.elastic.elements.shape[0] for b in energies)),
+            "num_surface_primitives": int(all_surface.shape[0]), "num_free_dofs": int(free_mask.sum()),
+            "input_intersecting_pairs": n_pairs}
+    system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
+    certifier = Certifier(
+        x, all_surface if c.enabled else None, [b.elastic.elements for b in energies],
+        distance_query=dhat, require_inversion_free=True, preserved_pairs=preserved,
+    )
+    s = scene.solver
+    newton = NewtonSettings(tol=s.newton_tol, max_iterations=s.max_newton_iterations, inversion_eta=s.inversion_eta,
+                            check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate)
+    o, t = scene.output, scene.time
+    run = RunSettings(steps=steps or t.steps, stop_when_stationary=t.stop_when_stationary, stationary_tol=t.stationary_tol,
+                      write_every=o.every, write_obj=o.obj, write_vtu=o.vtu, write_png=o.png,
+                      on_nonconvergence=s.on_nonconvergence)
+    return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+
+
+def _describe_vertex(v: int, parts: list[Part]) -> str:
+    for p in parts:
+        if p.vertex_ids[0] <= v <= p.vertex_ids[-1]:
+            return f"{p.name}:{v - p.vertex_ids[0]}"
+    return str(v)
+
+
+def _input_intersections(x, surface, parts, dim, preserve: bool):
+    """Find intersecting surface primitive pairs; refuse them, or return them to be preserved.
+
+    Preserving (paper §5.5) needs no special treatment in the barrier or CCD: the barrier and CCD act
+    on point-triangle and edge-edge pairs, which stay at positive distance around a crossing, so CCD
+    keeps each crossing edge inside its triangle (the crossing can neither be undone nor spread to a
+    new pair); the certificate then allows exactly the input's crossing pairs."""
+    from idp.contact.intersections import intersecting_pair_keys
+
+    keys = intersecting_pair_keys(x, surface)
+    if not keys:
+        return set(), 0
+    if not preserve:
+        kind = "triangle" if dim == 3 else "segment"
+        shown = []
+        for a, b in sorted(keys)[:5]:
+            shown.append("edge (" + ", ".join(_describe_vertex(v, parts) for v in a) + f") x {kind} ("
+                         + ", ".join(_describe_vertex(v, parts) for v in b) + ")")
+        raise IntersectingInputError(
+            f"the start state has {len(keys)} intersecting surface primitive pair(s) (object:vertex ids), e.g. "
+            + "; ".join(shown)
+            + ". Fix the input, or set contact.preserve_input_intersections = true to keep them (IDP then preserves, never removes, them)."
+        )
+    log.warning("preserving %d intersecting input primitive pair(s); every other pair stays guarded", len(keys))
+    return keys, len(keys)

@@ -1,0 +1,217 @@
+"""Artificial time stepping (paper §4.1, §4.5): step loop, per-frame certificate, output, statistics.
+
+Every finished step is on disk before the next one starts (frames, PVD index, stats.json and a
+checkpoint), so an interrupted run loses nothing it had finished and can be resumed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from idp.contact.certificate import Certifier
+from idp.errors import CertificateError, SolverError
+from idp.output.frames import FrameWriter
+from idp.output.stats import StatsRecorder
+from idp.solver.linear import LinearSolver
+from idp.solver.newton import NewtonSettings, StepSolver
+
+log = logging.getLogger("idp")
+
+
+@dataclass
+class RunSettings:
+    steps: int = 60
+    stop_when_stationary: bool = False
+    stationary_tol: float = 1e-5
+    write_every: int = 1
+    write_obj: bool = True
+    write_vtu: bool = True
+    write_png: bool = True
+    on_nonconvergence: str = "warn"
+    progress: bool = True
+    resume: bool = False
+
+
+@dataclass
+class RunResult:
+    out_dir: Path
+    steps_run: int
+    x: np.ndarray
+    summary: dict
+    step_records: list = field(default_factory=list)
+    parts: list = field(default_factory=list)
+
+
+def _fill_fraction(system, x) -> float | None:
+    cage = system.meta.get("cage_volume")
+    if not cage:
+        return None
+    return system.deformable_volume(x) / cage
+
+
+def run_simulation(
+    system,
+    newton: NewtonSettings,
+    linear: LinearSolver,
+    certifier: Certifier,
+    out_dir: str | Path,
+    settings: RunSettings,
+    meta: dict | None = None,
+) -> RunResult:
+    """Run ``settings.steps`` artificial time steps from ``system.x``; write everything to ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = dict(meta or {})
+    writer = FrameWriter(out, system.parts, system.dim, write_obj=settings.write_obj, write_vtu=settings.write_vtu,
+                         fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1))
+    stats = StatsRecorder(out / "stats.json", meta)
+    solver = StepSolver(system, newton, linear, certifier=certifier)
+    checkpoint = out / "checkpoint.npz"
+
+    start_step = 0
+    if settings.resume and checkpoint.exists():
+        ck = np.load(checkpoint)
+        if ck["x"].shape != system.x.shape:
+            raise SolverError(f"checkpoint {checkpoint} does not match this scene (shape {ck['x'].shape} vs {system.x.shape})")
+        system.x = ck["x"].copy()
+        start_step = int(ck["step"])
+        if system.contact is not None:
+            system.contact.kappa, system.contact.kappa_max = float(ck["kappa"]), float(ck["kappa_max"])
+        log.info("resuming %s after step %d", out, start_step)
+
+    x0 = system.x.copy()
+    cert0 = certifier.check(x0)
+    if not cert0.ok:
+        raise CertificateError(f"the start state fails the injectivity check: {cert0.describe()}")
+    if start_step == 0:
+        writer.write(0, x0, time=0.0)
+    fill0 = _fill_fraction(system, x0)
+    stats.add_step({"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True})
+
+    progress = None
+    if settings.progress:
+        from tqdm import tqdm
+
+        progress = tqdm(total=settings.steps, initial=start_step, desc="idp", unit="step", dynamic_ncols=True)
+
+    t_run = time.perf_counter()
+    x = system.x
+    total_its, uncertified, nonconverged = 0, 0, 0
+    stopped_reason = "step count reached"
+    step = start_step
+    records = []
+    try:
+        for step in range(start_step + 1, settings.steps + 1):
+            t_step = time.perf_counter()
+            system.set_rest_shape_for_step(step)
+            x_new, res = solver.solve(x)
+            t_cert = time.perf_counter()
+            cert = certifier.check(x_new)
+            t_cert = time.perf_counter() - t_cert
+            max_move = float(np.abs(x_new - x).max(initial=0.0))
+            x = x_new
+            system.x = x
+            total_its += res.iterations
+            step_time = time.perf_counter() - t_step
+            fill = _fill_fraction(system, x)
+            timings = dict(res.timings)
+            timings["certificate"] = t_cert
+            timings["other"] = max(step_time - sum(timings.values()), 0.0)
+            rec = {
+                "step": step,
+                "wall_time": step_time,
+                "newton_iterations": res.iterations,
+                "converged": res.converged,
+                "hit_iteration_cap": res.hit_iteration_cap,
+                "line_search_failed": res.line_search_failed,
+                "newton_decrement": res.decrement,
+                "alphas": res.alphas,
+                "ccd_alphas": res.ccd_alphas,
+                "inversion_alphas": res.inversion_alphas,
+                "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
+                "contacts": res.num_contacts,
+                "kappa": res.kappa,
+                "energy": res.energy,
+                "elastic_energy": res.elastic_energy,
+                "barrier_energy": res.barrier_energy,
+                "min_distance": res.min_distance,
+                "max_displacement": max_move,
+                "fill_fraction": fill,
+                "certificate": cert.to_dict(),
+                "timings": timings,
+            }
+            records.append(rec)
+            stats.add_step(rec)
+            if not cert.ok:
+                uncertified += 1
+                raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
+            if not res.converged:
+                nonconverged += 1
+                why = "hit the iteration cap" if res.hit_iteration_cap else "line search could not decrease the energy"
+                msg = f"step {step} did not converge ({why}; decrement {res.decrement:.3e} > tol {newton.tol:g})"
+                if settings.on_nonconvergence == "error":
+                    raise SolverError(msg)
+                log.warning(msg)
+            last = step == settings.steps
+            stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
+            if last or stationary or step % settings.write_every == 0:
+                writer.write(step, x, time=step * math.sqrt(system.h))
+            np.savez(checkpoint, x=x, step=step,
+                     kappa=system.contact.kappa if system.contact else 0.0,
+                     kappa_max=system.contact.kappa_max if system.contact else 0.0)
+            if progress is not None:
+                post = {"its": res.iterations, "contacts": res.num_contacts}
+                if fill is not None:
+                    post["fill"] = f"{100 * fill:.2f}%"
+                else:
+                    post["E"] = f"{res.energy:.3e}"
+                progress.set_postfix(post)
+                progress.update(1)
+            if stationary:
+                if step % settings.write_every != 0:
+                    writer.write(step, x, time=step * math.sqrt(system.h))
+                stopped_reason = f"stationary (max |dx| {max_move:.2e} < {settings.stationary_tol:g})"
+                break
+    except KeyboardInterrupt:
+        stopped_reason = f"interrupted during step {step}"
+        log.warning("interrupted: everything up to step %d is on disk", step - 1)
+        step -= 1
+    finally:
+        if progress is not None:
+            progress.close()
+        writer.close()
+
+    wall = time.perf_counter() - t_run
+    steps_done = len(records)
+    summary = {
+        "steps_run": steps_done,
+        "last_step": records[-1]["step"] if records else start_step,
+        "stopped": stopped_reason,
+        "wall_time": wall,
+        "newton_iterations": total_its,
+        "nonconverged_steps": nonconverged,
+        "uncertified_frames": uncertified,
+        "all_certified": uncertified == 0,
+        "fill_fraction": _fill_fraction(system, x),
+        "initial_fill_fraction": fill0,
+        "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),
+        "timings": {k: float(sum(r["timings"].get(k, 0.0) for r in records)) for k in (records[0]["timings"] if records else {})},
+        "linear_solver": getattr(linear, "stats", {}),
+    }
+    stats.set_summary(summary)
+    if settings.write_png and records:
+        try:
+            from idp.output.render import render_frames_png
+
+            render_frames_png(out / "frames.png", system.parts, [(f"step {start_step}", x0), (f"step {summary['last_step']}", x)], dim=system.dim)
+        except Exception as exc:  # a picture must never lose a finished run
+            log.warning("could not render frames.png: %s", exc)
+    if stopped_reason.startswith("interrupted"):
+        raise KeyboardInterrupt
+    return RunResult(out, steps_done, x, summary, records, system.parts)

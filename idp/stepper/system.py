@@ -1,0 +1,85 @@
+"""The assembled deformation problem: positions, masses, pinned DOFs, energies and contact."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from idp.contact.model import ContactModel
+from idp.energies.elastic import ElasticEnergy
+from idp.energies.inertia import Inertia
+from idp.output.parts import Part
+from idp.solver.assembly import FixedPatternAssembler, FreeDofMap
+
+
+@dataclass
+class RestShapeSchedule:
+    """Rest-shape scripting (paper §4.5 "Shape"): scale(k) = base · (1 + rate · min(k, steps))."""
+
+    base: np.ndarray
+    growth_rate: float = 0.0
+    growth_steps: int = 0
+
+    def factor(self, step: int) -> np.ndarray:
+        k = min(max(step, 0), self.growth_steps)
+        return self.base * (1.0 + self.growth_rate * k)
+
+
+@dataclass
+class Body:
+    """A deformable object: its global vertex range, its elastic energy and its rest-shape schedule."""
+
+    name: str
+    vertex_ids: np.ndarray
+    elastic: ElasticEnergy
+    schedule: RestShapeSchedule
+
+
+@dataclass
+class System:
+    """Everything one artificial time step needs (paper eq. 6)."""
+
+    dim: int
+    x: np.ndarray                    # (n, d) current positions, deformables first then obstacles
+    masses: np.ndarray               # (n,) lumped masses (0 on obstacle vertices)
+    free_mask: np.ndarray            # (n*d,) True where the DOF is optimised
+    bodies: list[Body]
+    parts: list[Part]
+    h: float
+    contact: ContactModel | None = None
+    num_dynamic_vertices: int = 0
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.dof_map = FreeDofMap(self.free_mask)
+        self.inertia = Inertia(self.masses, self.dim)
+        self.assembler = FixedPatternAssembler([b.elastic.element_dofs() for b in self.bodies], self.dof_map)
+        if self.contact is not None:
+            self.collision_dofs = self.contact.collision_dofs()
+            self.collision_dof_to_free = self.dof_map.global_to_free[self.collision_dofs]
+        dyn = self.masses[: self.num_dynamic_vertices]
+        self.average_mass = float(dyn[dyn > 0].mean()) if np.any(dyn > 0) else 1.0
+
+    @property
+    def elements(self) -> list[np.ndarray]:
+        return [b.elastic.elements for b in self.bodies]
+
+    def set_rest_shape_for_step(self, step: int) -> None:
+        """Apply every body's rest-shape schedule for the step about to be solved (1-based)."""
+        for b in self.bodies:
+            b.elastic.set_rest_scale(b.schedule.factor(step))
+
+    def elastic_value(self, x: np.ndarray) -> float:
+        return float(sum(b.elastic.value(x) for b in self.bodies))
+
+    def elastic_gradient(self, x: np.ndarray) -> np.ndarray:
+        g = np.zeros(x.size)
+        for b in self.bodies:
+            g += b.elastic.gradient(x)
+        return g
+
+    def deformable_volume(self, x: np.ndarray) -> float:
+        from idp.mesh.quality import signed_volumes
+
+        return float(sum(signed_volumes(x, b.elastic.elements).sum() for b in self.bodies))
