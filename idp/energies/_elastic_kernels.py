@@ -1,0 +1,614 @@
+"""Per-element kernels for simplex distortion energies (neo-Hookean, symmetric Dirichlet).
+
+For element t with local vertices x_0..x_d: F = Ds Dm^{-1}, Ds = [x_1-x_0, ..., x_d-x_0],
+energy v_t Psi(F), gradient v_t dPsi/dF pulled back to the d+1 nodes, and the Hessian built
+from the analytic eigensystem of an isotropic energy written in signed singular values
+(scaling block + per-pair flip/twist modes), each eigenvalue optionally clamped at 0 so the
+element block is PSD without a (d+1)d x (d+1)d eigen-decomposition.
+
+Local DOF order of an element block: [x0_0, .., x0_{d-1}, x1_0, ...] (vertex-major).
+
+`element_terms` is the numba hot path (prange over chunks of elements, scratch arrays
+allocated once per chunk); `element_terms_reference` is a plain vectorised numpy version
+built along a different route (explicit dF/dx matrix, LAPACK SVD/eigh) kept for tests.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+NEO_HOOKEAN = 0
+SYMMETRIC_DIRICHLET = 1
+
+#: Elements per parallel work item; scratch arrays are allocated once per chunk.
+CHUNK = 64
+
+_SQRT_HALF = 1.0 / math.sqrt(2.0)
+
+
+# --------------------------------------------------------------------------------------
+# small dense helpers (d = 2 or 3)
+# --------------------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy")
+def _det(M: np.ndarray, d: int) -> float:
+    """Determinant of the leading d x d block."""
+    if d == 2:
+        return M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+    return (
+        M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+        - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+        + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
+    )
+
+
+@njit(cache=True, error_model="numpy")
+def _inverse(M: np.ndarray, d: int, J: float, out: np.ndarray) -> None:
+    """out = M^{-1} via the adjugate (J = det M, nonzero)."""
+    s = 1.0 / J
+    if d == 2:
+        out[0, 0] = M[1, 1] * s
+        out[0, 1] = -M[0, 1] * s
+        out[1, 0] = -M[1, 0] * s
+        out[1, 1] = M[0, 0] * s
+        return
+    out[0, 0] = (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) * s
+    out[0, 1] = (M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]) * s
+    out[0, 2] = (M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]) * s
+    out[1, 0] = (M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]) * s
+    out[1, 1] = (M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]) * s
+    out[1, 2] = (M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]) * s
+    out[2, 0] = (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]) * s
+    out[2, 1] = (M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]) * s
+    out[2, 2] = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) * s
+
+
+@njit(cache=True, error_model="numpy")
+def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.ndarray,
+                  A: np.ndarray) -> None:
+    """F = U diag(sig) V^T with det U = det V = +1, |sig| descending, sign(sig[d-1]) = sign(det F).
+
+    One-sided (Hestenes) Jacobi on the columns of A = F V, which gives singular values to
+    high relative accuracy; U is completed by orthogonalisation / cross product so it is a
+    rotation even for rank-deficient F.  A is scratch.
+    """
+    for r in range(d):
+        for c in range(d):
+            A[r, c] = F[r, c]
+            V[r, c] = 1.0 if r == c else 0.0
+    for _sweep in range(40):
+        rotated = False
+        for p in range(d - 1):
+            for q in range(p + 1, d):
+                alpha = 0.0
+                beta = 0.0
+                gamma = 0.0
+                for r in range(d):
+                    alpha += A[r, p] * A[r, p]
+                    beta += A[r, q] * A[r, q]
+                    gamma += A[r, p] * A[r, q]
+                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                    continue
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                if abs(zeta) > 1e150:
+                    t = 0.5 / zeta
+                else:
+                    t = 1.0 / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                    if zeta < 0.0:
+                        t = -t
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                s = c * t
+                for r in range(d):
+                    ap = A[r, p]
+                    aq = A[r, q]
+                    A[r, p] = c * ap - s * aq
+                    A[r, q] = s * ap + c * aq
+                    vp = V[r, p]
+                    vq = V[r, q]
+                    V[r, p] = c * vp - s * vq
+                    V[r, q] = s * vp + c * vq
+        if not rotated:
+            break
+    for c in range(d):
+        nrm = 0.0
+        for r in range(d):
+            nrm += A[r, c] * A[r, c]
+        sig[c] = math.sqrt(nrm)
+    # sort columns by descending norm (selection sort, d <= 3)
+    for i in range(d - 1):
+        best = i
+        for j in range(i + 1, d):
+            if sig[j] > sig[best]:
+                best = j
+        if best != i:
+            tmp = sig[i]
+            sig[i] = sig[best]
+            sig[best] = tmp
+            for r in range(d):
+                tmp = A[r, i]
+                A[r, i] = A[r, best]
+                A[r, best] = tmp
+                # a swap flips det V; negate one column to keep a rotation
+                tmp = V[r, i]
+                V[r, i] = V[r, best]
+                V[r, best] = -tmp
+                A[r, best] = -A[r, best]
+    # U: first columns from A, the last one completes a right-handed frame
+    if sig[0] > 0.0:
+        for r in range(d):
+            U[r, 0] = A[r, 0] / sig[0]
+    else:
+        for r in range(d):
+            U[r, 0] = 1.0 if r == 0 else 0.0
+    if d == 2:
+        U[0, 1] = -U[1, 0]
+        U[1, 1] = U[0, 0]
+        sig[1] = U[0, 1] * A[0, 1] + U[1, 1] * A[1, 1]
+        return
+    # d == 3: u1 = normalised component of a1 orthogonal to u0
+    dot = U[0, 0] * A[0, 1] + U[1, 0] * A[1, 1] + U[2, 0] * A[2, 1]
+    w0 = A[0, 1] - dot * U[0, 0]
+    w1 = A[1, 1] - dot * U[1, 0]
+    w2 = A[2, 1] - dot * U[2, 0]
+    nw = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if nw <= 1e-300 or nw < 1e-8 * sig[1]:
+        # a1 ~ 0: any unit vector orthogonal to u0 will do
+        ax = 0
+        if abs(U[1, 0]) < abs(U[ax, 0]):
+            ax = 1
+        if abs(U[2, 0]) < abs(U[ax, 0]):
+            ax = 2
+        e0 = 1.0 if ax == 0 else 0.0
+        e1 = 1.0 if ax == 1 else 0.0
+        e2 = 1.0 if ax == 2 else 0.0
+        dot = U[ax, 0]
+        w0 = e0 - dot * U[0, 0]
+        w1 = e1 - dot * U[1, 0]
+        w2 = e2 - dot * U[2, 0]
+        nw = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    U[0, 1] = w0 / nw
+    U[1, 1] = w1 / nw
+    U[2, 1] = w2 / nw
+    sig[1] = U[0, 1] * A[0, 1] + U[1, 1] * A[1, 1] + U[2, 1] * A[2, 1]
+    U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+    U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+    U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+    sig[2] = U[0, 2] * A[0, 2] + U[1, 2] * A[1, 2] + U[2, 2] * A[2, 2]
+
+
+@njit(cache=True, error_model="numpy")
+def _sym_eig(S: np.ndarray, d: int, Q: np.ndarray, lam: np.ndarray) -> None:
+    """Eigen-decomposition of a symmetric d x d matrix by cyclic Jacobi: S = Q diag(lam) Q^T.
+
+    S is overwritten (ends diagonal)."""
+    for r in range(d):
+        for c in range(d):
+            Q[r, c] = 1.0 if r == c else 0.0
+    for _sweep in range(50):
+        off = 0.0
+        tot = 0.0
+        for r in range(d):
+            for c in range(d):
+                tot += S[r, c] * S[r, c]
+                if r != c:
+                    off += S[r, c] * S[r, c]
+        if off == 0.0 or off <= 1e-32 * tot:
+            break
+        for p in range(d - 1):
+            for q in range(p + 1, d):
+                apq = S[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (S[q, q] - S[p, p]) / (2.0 * apq)
+                if abs(theta) > 1e150:
+                    t = 0.5 / theta
+                else:
+                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    if theta < 0.0:
+                        t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for r in range(d):  # columns: S J
+                    sp = S[r, p]
+                    sq = S[r, q]
+                    S[r, p] = c * sp - s * sq
+                    S[r, q] = s * sp + c * sq
+                for r in range(d):  # rows: J^T (S J)
+                    sp = S[p, r]
+                    sq = S[q, r]
+                    S[p, r] = c * sp - s * sq
+                    S[q, r] = s * sp + c * sq
+                for r in range(d):
+                    qp = Q[r, p]
+                    qq = Q[r, q]
+                    Q[r, p] = c * qp - s * qq
+                    Q[r, q] = s * qp + c * qq
+    for i in range(d):
+        lam[i] = S[i, i]
+
+
+@njit(cache=True, error_model="numpy")
+def _sigma_eigensystem(model: int, a: float, b: float, sig: np.ndarray, lnJ: float, d: int,
+                       S: np.ndarray, flip: np.ndarray, twist: np.ndarray) -> None:
+    """S = d^2 psi / d sigma^2; flip[i,j] = (psi_i - psi_j)/(s_i - s_j), twist[i,j] = (psi_i + psi_j)/(s_i + s_j).
+
+    Closed forms that stay finite at s_i = s_j.  NH: a = mu, b = lambda; SD: a = weight w.
+    """
+    if model == NEO_HOOKEAN:
+        mu = a
+        la = b
+        cc = mu - la * lnJ
+        for i in range(d):
+            for j in range(d):
+                sij = sig[i] * sig[j]
+                if i == j:
+                    S[i, i] = mu + (cc + la) / sij
+                else:
+                    S[i, j] = la / sij
+                    flip[i, j] = mu + cc / sij
+                    twist[i, j] = mu - cc / sij
+    else:
+        w2 = 2.0 * a
+        for i in range(d):
+            si = sig[i]
+            for j in range(d):
+                if i == j:
+                    S[i, i] = w2 * (1.0 + 3.0 / (si * si * si * si))
+                else:
+                    sj = sig[j]
+                    S[i, j] = 0.0
+                    p3 = (si * sj) ** 3
+                    flip[i, j] = w2 * (1.0 + (si * si + si * sj + sj * sj) / p3)
+                    twist[i, j] = w2 * (1.0 - (si * si - si * sj + sj * sj) / p3)
+
+
+@njit(cache=True, error_model="numpy")
+def _is_pd(S: np.ndarray, d: int) -> bool:
+    """Symmetric d x d S positive definite (all leading principal minors > 0)."""
+    if not (S[0, 0] > 0.0):
+        return False
+    m2 = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    if not (m2 > 0.0):
+        return False
+    if d == 2:
+        return True
+    return _det(S, 3) > 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _add_mode(H: np.ndarray, g: np.ndarray, coef: float, k: int) -> None:
+    """H[upper] += coef g g^T (upper triangle only)."""
+    for i in range(k):
+        gi = coef * g[i]
+        if gi == 0.0:
+            continue
+        for j in range(i, k):
+            H[i, j] += gi * g[j]
+
+
+@njit(cache=True, error_model="numpy")
+def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
+    """g = dF/dx^T : P for P already multiplied by Dm^{-T} (columns -> nodes 1..d, node 0 = -sum)."""
+    for r in range(d):
+        acc = 0.0
+        for a in range(d):
+            g[(a + 1) * d + r] = P[r, a]
+            acc += P[r, a]
+        g[r] = -acc
+
+
+# --------------------------------------------------------------------------------------
+# main kernel
+# --------------------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy")
+def _element_chunk(t_begin: int, t_end: int, x: np.ndarray, elements: np.ndarray,
+                   dm_inv: np.ndarray, volumes: np.ndarray, model: int, param_a: np.ndarray,
+                   param_b: np.ndarray, want_grad: bool, want_hess: bool, project: bool,
+                   energy_out: np.ndarray, grad_out: np.ndarray, hess_out: np.ndarray) -> None:
+    """Serial body of `element_terms` for elements [t_begin, t_end) (scratch allocated once).
+
+    Kept out of the prange loop so numba's parallel passes see a tiny loop (fast compile)."""
+    d = x.shape[1]
+    k = (d + 1) * d
+    Ds = np.empty((d, d))
+    F = np.empty((d, d))
+    Fi = np.empty((d, d))
+    P = np.empty((d, d))
+    PW = np.empty((d, d))
+    U = np.empty((d, d))
+    V = np.empty((d, d))
+    A = np.empty((d, d))
+    W = np.empty((d, d))
+    S = np.empty((d, d))
+    Q = np.empty((d, d))
+    flip = np.zeros((d, d))
+    twist = np.zeros((d, d))
+    sig = np.empty(d)
+    lamS = np.empty(d)
+    g = np.empty(k)
+    Gs = np.empty((d, k))
+    for t in range(t_begin, t_end):
+        v = volumes[t]
+        i0 = elements[t, 0]
+        for a in range(d):
+            ia = elements[t, a + 1]
+            for r in range(d):
+                Ds[r, a] = x[ia, r] - x[i0, r]
+        for r in range(d):
+            for c in range(d):
+                acc = 0.0
+                for a in range(d):
+                    acc += Ds[r, a] * dm_inv[t, a, c]
+                F[r, c] = acc
+        J = _det(F, d)
+        if not (J > 0.0):
+            energy_out[t] = np.inf
+            if want_grad:
+                for i in range(k):
+                    grad_out[t, i] = np.nan
+            if want_hess:
+                for i in range(k):
+                    for j in range(k):
+                        hess_out[t, i, j] = np.nan
+            continue
+        _inverse(F, d, J, Fi)
+        lnJ = math.log(J)
+        nF = 0.0
+        for r in range(d):
+            for c in range(d):
+                nF += F[r, c] * F[r, c]
+        pa = param_a[t]
+        pb = param_b[t]
+        if model == NEO_HOOKEAN:
+            psi = 0.5 * pa * (nF - d) - pa * lnJ + 0.5 * pb * lnJ * lnJ
+        else:
+            nFi = 0.0
+            for r in range(d):
+                for c in range(d):
+                    nFi += Fi[r, c] * Fi[r, c]
+            psi = pa * (nF + nFi - 2.0 * d)
+        energy_out[t] = v * psi
+        if want_grad:
+            # P = dPsi/dF using F^{-T}[r,c] = Fi[c,r]
+            if model == NEO_HOOKEAN:
+                cc = pb * lnJ - pa
+                for r in range(d):
+                    for c in range(d):
+                        P[r, c] = pa * F[r, c] + cc * Fi[c, r]
+            else:
+                # P = 2w (F - F^{-T} F^{-1} F^{-T}); (F^{-T}F^{-1}F^{-T})[r,c] = sum Fi[a,r] Fi[a,b] Fi[c,b]
+                for r in range(d):
+                    for c in range(d):
+                        acc = 0.0
+                        for a2 in range(d):
+                            for b2 in range(d):
+                                acc += Fi[a2, r] * Fi[a2, b2] * Fi[c, b2]
+                        P[r, c] = 2.0 * pa * (F[r, c] - acc)
+            # PW = v P Dm^{-T}
+            for r in range(d):
+                for a in range(d):
+                    acc = 0.0
+                    for c in range(d):
+                        acc += P[r, c] * dm_inv[t, a, c]
+                    PW[r, a] = v * acc
+            _pull_back(PW, d, g)
+            for i in range(k):
+                grad_out[t, i] = g[i]
+        if want_hess:
+            H = hess_out[t]
+            for i in range(k):
+                for j in range(k):
+                    H[i, j] = 0.0
+            _rotation_svd(F, d, U, sig, V, A)
+            _sigma_eigensystem(model, pa, pb, sig, lnJ, d, S, flip, twist)
+            direct = (not project) or _is_pd(S, d)
+            if not direct:
+                _sym_eig(S, d, Q, lamS)
+            # W = V^T Dm^{-T}: mode U M V^T maps to P = U M W
+            for j in range(d):
+                for a in range(d):
+                    acc = 0.0
+                    for c in range(d):
+                        acc += V[c, j] * dm_inv[t, a, c]
+                    W[j, a] = acc
+            if direct:
+                # scaling block needs no clamping: H += v sum_ij S_ij g_i g_j^T with g_i
+                # the pull-back of U e_i e_i^T V^T (skips the d x d eigen-decomposition)
+                for i in range(d):
+                    for r in range(d):
+                        for a in range(d):
+                            PW[r, a] = U[r, i] * W[i, a]
+                    _pull_back(PW, d, g)
+                    for j in range(k):
+                        Gs[i, j] = g[j]
+                for i in range(d):
+                    for j in range(k):
+                        acc = 0.0
+                        for l in range(d):
+                            acc += S[i, l] * Gs[l, j]
+                        g[j] = v * acc
+                    for a in range(k):
+                        ga = Gs[i, a]
+                        if ga == 0.0:
+                            continue
+                        for b in range(a, k):
+                            H[a, b] += ga * g[b]
+            # scaling modes U diag(q) V^T of the clamped eigen-decomposition of S
+            for l in range(d):
+                if direct:
+                    break
+                lam = lamS[l]
+                if project and lam < 0.0:
+                    lam = 0.0
+                if lam == 0.0:
+                    continue
+                for r in range(d):
+                    for a in range(d):
+                        acc = 0.0
+                        for l2 in range(d):
+                            acc += U[r, l2] * Q[l2, l] * W[l2, a]
+                        PW[r, a] = acc
+                _pull_back(PW, d, g)
+                _add_mode(H, g, v * lam, k)
+            # flip / twist modes per pair
+            for i in range(d - 1):
+                for j in range(i + 1, d):
+                    for mode in range(2):
+                        if mode == 0:
+                            lam = flip[i, j]
+                            sgn = 1.0
+                        else:
+                            lam = twist[i, j]
+                            sgn = -1.0
+                        if project and lam < 0.0:
+                            lam = 0.0
+                        if lam == 0.0:
+                            continue
+                        for r in range(d):
+                            for a in range(d):
+                                PW[r, a] = _SQRT_HALF * (U[r, i] * W[j, a]
+                                                         + sgn * U[r, j] * W[i, a])
+                        _pull_back(PW, d, g)
+                        _add_mode(H, g, v * lam, k)
+            for i in range(k):
+                for j in range(i):
+                    H[i, j] = H[j, i]
+
+
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def element_terms(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray, volumes: np.ndarray,
+                  model: int, param_a: np.ndarray, param_b: np.ndarray, want_grad: bool,
+                  want_hess: bool, project: bool, energy_out: np.ndarray, grad_out: np.ndarray,
+                  hess_out: np.ndarray) -> None:
+    """Fill per-element energy (m,), gradient (m,k) and Hessian (m,k,k) (the last two if asked).
+
+    Elements with det F <= 0 get energy +inf and NaN gradient / Hessian (barrier energies
+    are undefined there; callers keep iterates feasible with the inversion filter).
+    NH: param_a = mu, param_b = lambda; SD: param_a = weight.  Parallel over chunks of
+    CHUNK elements; every element writes only its own output rows (no races).
+    """
+    m = elements.shape[0]
+    nchunk = (m + CHUNK - 1) // CHUNK
+    for ch in prange(nchunk):
+        _element_chunk(ch * CHUNK, min(m, (ch + 1) * CHUNK), x, elements, dm_inv, volumes,
+                       model, param_a, param_b, want_grad, want_hess, project, energy_out,
+                       grad_out, hess_out)
+
+
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def element_jacobians(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray) -> np.ndarray:
+    """det F per element (m,) as det(Ds) det(Dm^{-1})."""
+    m = elements.shape[0]
+    d = x.shape[1]
+    out = np.empty(m)
+    nchunk = (m + CHUNK - 1) // CHUNK
+    for ch in prange(nchunk):
+        Ds = np.empty((d, d))
+        Di = np.empty((d, d))
+        for t in range(ch * CHUNK, min(m, (ch + 1) * CHUNK)):
+            i0 = elements[t, 0]
+            for a in range(d):
+                ia = elements[t, a + 1]
+                for r in range(d):
+                    Ds[r, a] = x[ia, r] - x[i0, r]
+                    Di[r, a] = dm_inv[t, r, a]
+            out[t] = _det(Ds, d) * _det(Di, d)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# numpy reference (tests only)
+# --------------------------------------------------------------------------------------
+
+
+def deformation_map(dm_inv: np.ndarray) -> np.ndarray:
+    """B (m, d*d, k) with vec(F) = B x_local, vec row-major (F[r,c] -> r*d+c), x_local vertex-major."""
+    m, d, _ = dm_inv.shape
+    k = (d + 1) * d
+    B = np.zeros((m, d * d, k))
+    for r in range(d):
+        for c in range(d):
+            row = r * d + c
+            for a in range(d):
+                B[:, row, (a + 1) * d + r] = dm_inv[:, a, c]
+            B[:, row, r] = -dm_inv[:, :, c].sum(axis=1)
+    return B
+
+
+def element_terms_reference(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray,
+                            volumes: np.ndarray, model: int, param_a: np.ndarray,
+                            param_b: np.ndarray, project: bool = True
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plain numpy (energy (m,), gradient (m,k), Hessian (m,k,k)); assumes all det F > 0."""
+    m, d, _ = dm_inv.shape
+    xe = x[elements]  # (m, d+1, d)
+    Ds = np.transpose(xe[:, 1:, :] - xe[:, :1, :], (0, 2, 1))
+    F = Ds @ dm_inv
+    J = np.linalg.det(F)
+    lnJ = np.log(J)
+    Fi = np.linalg.inv(F)
+    FiT = np.transpose(Fi, (0, 2, 1))
+    nF = np.einsum("mij,mij->m", F, F)
+    a = param_a
+    b = param_b
+    if model == NEO_HOOKEAN:
+        psi = 0.5 * a * (nF - d) - a * lnJ + 0.5 * b * lnJ**2
+        P = a[:, None, None] * (F - FiT) + (b * lnJ)[:, None, None] * FiT
+    else:
+        nFi = np.einsum("mij,mij->m", Fi, Fi)
+        psi = a * (nF + nFi - 2 * d)
+        P = 2 * a[:, None, None] * (F - FiT @ Fi @ FiT)
+    B = deformation_map(dm_inv)
+    grad = volumes[:, None] * np.einsum("mrk,mr->mk", B, P.reshape(m, d * d))
+
+    U, sig, Vt = np.linalg.svd(F)
+    V = np.transpose(Vt, (0, 2, 1))
+    for M in (U, V):
+        neg = np.linalg.det(M) < 0
+        M[neg, :, -1] *= -1.0
+        sig[neg, -1] *= -1.0
+    si = sig[:, :, None]
+    sj = sig[:, None, :]
+    eye = np.eye(d, dtype=bool)[None]
+    if model == NEO_HOOKEAN:
+        cc = (a - b * lnJ)[:, None, None]
+        S = np.where(eye, a[:, None, None] + (cc + b[:, None, None]) / (si * sj),
+                     b[:, None, None] / (si * sj))
+        flip = a[:, None, None] + cc / (si * sj)
+        twist = a[:, None, None] - cc / (si * sj)
+    else:
+        w2 = 2 * a[:, None, None]
+        S = np.where(eye, w2 * (1 + 3 / (si * sj) ** 2), 0.0)
+        p3 = (si * sj) ** 3
+        flip = w2 * (1 + (si**2 + si * sj + sj**2) / p3)
+        twist = w2 * (1 - (si**2 - si * sj + sj**2) / p3)
+    lamS, Qs = np.linalg.eigh(S)
+    modes = []
+    lams = []
+    for l in range(d):
+        M = np.einsum("mi,ij->mij", Qs[:, :, l], np.eye(d))  # diag(q_l)
+        modes.append(M)
+        lams.append(lamS[:, l])
+    for i in range(d):
+        for j in range(i + 1, d):
+            for sgn, ev in ((1.0, flip), (-1.0, twist)):
+                M = np.zeros((m, d, d))
+                M[:, i, j] = np.sqrt(0.5)
+                M[:, j, i] = sgn * np.sqrt(0.5)
+                modes.append(M)
+                lams.append(ev[:, i, j])
+    K = np.zeros((m, d * d, d * d))
+    for M, lam in zip(modes, lams):
+        G = (U @ M @ Vt).reshape(m, d * d)
+        if project:
+            lam = np.maximum(lam, 0.0)
+        K += lam[:, None, None] * G[:, :, None] * G[:, None, :]
+    hess = volumes[:, None, None] * np.einsum("mak,mab,mbl->mkl", B, K, B)
+    return volumes * psi, grad, hess

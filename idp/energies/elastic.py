@@ -1,0 +1,188 @@
+"""Barrier distortion energies E(x) = sum_t v_t Psi(F_t) on tetrahedra (3D) and triangles (2D).
+
+Models (paper §4.4): neo-Hookean and symmetric Dirichlet, both -> +inf as det F -> 0+, so a
+line search with the inversion filter (``idp.solver.inversion_filter``) keeps every element
+positively oriented.  Material parameters are per element so several materials coexist.
+Element Hessians are made PSD per element through the analytic singular-value eigensystem
+(see ``_elastic_kernels``), as projected Newton needs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from idp.energies import _elastic_kernels as _k
+
+MODELS = {"neo_hookean": _k.NEO_HOOKEAN, "symmetric_dirichlet": _k.SYMMETRIC_DIRICHLET}
+
+
+def rest_frames(rest_vertices: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Dm_inv (m,d,d), rest_volumes (m,)) with Dm = [x1-x0, .., xd-x0] of the rest shape.
+
+    Raises ValueError naming the first element whose rest volume/area is not positive
+    (degenerate or wrongly oriented), since Dm^{-1} and the barrier need it.
+    """
+    X = np.asarray(rest_vertices, dtype=np.float64)
+    T = np.asarray(elements, dtype=np.int64)
+    if X.ndim != 2 or X.shape[1] not in (2, 3):
+        raise ValueError(f"rest_vertices must be (n, 2) or (n, 3), got shape {X.shape}")
+    d = X.shape[1]
+    if T.ndim != 2 or T.shape[1] != d + 1:
+        raise ValueError(f"elements must be (m, {d + 1}) for {d}D vertices, got shape {T.shape}")
+    if T.size and (T.min() < 0 or T.max() >= X.shape[0]):
+        raise ValueError(f"elements index vertices outside [0, {X.shape[0]})")
+    Dm = _rest_matrices(X, T)
+    det = np.linalg.det(Dm) if len(T) else np.zeros(0)
+    bad = np.flatnonzero(~(det > 0))
+    if bad.size:
+        t = int(bad[0])
+        raise ValueError(
+            f"element {t} (vertices {T[t].tolist()}) has non-positive rest "
+            f"{'volume' if d == 3 else 'area'} {det[t] / (6.0 if d == 3 else 2.0):.3e}"
+        )
+    fact = 6.0 if d == 3 else 2.0
+    return np.linalg.inv(Dm), det / fact
+
+
+def _rest_matrices(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Dm (m,d,d) with columns x_a - x_0."""
+    xe = X[T]
+    return np.ascontiguousarray(np.transpose(xe[:, 1:, :] - xe[:, :1, :], (0, 2, 1)))
+
+
+def lame_parameters(youngs_modulus: float | np.ndarray,
+                    poisson_ratio: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
+    """(mu, lambda) from Young's modulus E > 0 and Poisson ratio -1 < nu < 0.5 (scalars or arrays)."""
+    E = np.asarray(youngs_modulus, dtype=np.float64)
+    nu = np.asarray(poisson_ratio, dtype=np.float64)
+    if not np.all(np.isfinite(E) & (E > 0)):
+        raise ValueError(f"youngs_modulus must be finite and > 0, got {youngs_modulus!r}")
+    if not np.all((nu > -1.0) & (nu < 0.5)):
+        raise ValueError(f"poisson_ratio must lie in (-1, 0.5), got {poisson_ratio!r}")
+    mu = E / (2.0 * (1.0 + nu))
+    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    if mu.ndim == 0:
+        return float(mu), float(lam)
+    return mu, lam
+
+
+def _per_element(value: float | np.ndarray, m: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(m, float(arr))
+    if arr.shape != (m,):
+        raise ValueError(f"{name} must be a scalar or shape ({m},), got {arr.shape}")
+    return np.ascontiguousarray(arr)
+
+
+class ElasticEnergy:
+    """E(x) = sum_t v_t Psi(F_t) over a set of elements of the global mesh.
+
+    ``elements`` (m, d+1) index the global vertex array; ``rest_vertices`` is the global rest
+    array (n, d).  ``x`` arguments are (n, d) (or flat (n*d,)) float64.  Gradients are flat
+    (n*d,) interleaved [x0, y0, (z0), x1, ...]; element Hessians are (m, k, k), k = (d+1) d, in
+    vertex-major local order matching ``element_dofs()``.  For elements with det F <= 0 the
+    value is +inf and gradient / Hessian are NaN (only feasible states are meaningful).
+    """
+
+    def __init__(self, model: str, rest_vertices: np.ndarray, elements: np.ndarray,
+                 youngs_modulus: float | np.ndarray, poisson_ratio: float | np.ndarray,
+                 weight: float | np.ndarray | None = None) -> None:
+        if model not in MODELS:
+            raise ValueError(f"unknown elastic model {model!r}; expected one of {sorted(MODELS)}")
+        self.model = model
+        self._model_id = MODELS[model]
+        X = np.asarray(rest_vertices, dtype=np.float64)
+        self.elements = np.ascontiguousarray(np.asarray(elements, dtype=np.int64))
+        self.Dm_inv, self.volumes = rest_frames(X, self.elements)
+        self.Dm_inv = np.ascontiguousarray(self.Dm_inv)
+        self._Dm0 = _rest_matrices(X, self.elements)
+        self.num_vertices = X.shape[0]
+        self.dim = X.shape[1]
+        m = self.elements.shape[0]
+        mu, lam = lame_parameters(_per_element(youngs_modulus, m, "youngs_modulus"),
+                                  _per_element(poisson_ratio, m, "poisson_ratio"))
+        self.mu = np.asarray(mu, dtype=np.float64).reshape(m)
+        self.lam = np.asarray(lam, dtype=np.float64).reshape(m)
+        if self._model_id == _k.NEO_HOOKEAN:
+            self._pa, self._pb = self.mu, self.lam
+        else:
+            w = self.mu / 4.0 if weight is None else _per_element(weight, m, "weight")
+            if not np.all(np.isfinite(w) & (w > 0)):
+                raise ValueError("symmetric Dirichlet weight must be finite and > 0")
+            self.weight = np.ascontiguousarray(w)
+            self._pa, self._pb = self.weight, np.zeros(m)
+        self._dofs = (self.elements[:, :, None] * self.dim
+                      + np.arange(self.dim)[None, None, :]).reshape(m, (self.dim + 1) * self.dim)
+
+    # ------------------------------------------------------------------ rest shape
+    def set_rest_scale(self, scale: float | np.ndarray) -> None:
+        """Rest shape = original rest shape scaled by ``scale`` (uniform, or per-axis (d,)).
+
+        Dm_inv = inv(diag(scale) Dm0); the volume weights v_t keep their original values
+        (as the reference implementation does during growth)."""
+        s = np.asarray(scale, dtype=np.float64)
+        if s.ndim == 0:
+            s = np.full(self.dim, float(s))
+        if s.shape != (self.dim,) or not np.all(np.isfinite(s) & (s > 0)):
+            raise ValueError(f"rest scale must be > 0, scalar or shape ({self.dim},), got {scale!r}")
+        self.Dm_inv = np.ascontiguousarray(np.linalg.inv(s[None, :, None] * self._Dm0))
+
+    # ------------------------------------------------------------------ evaluation
+    def _x(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        if x.ndim == 1:
+            x = x.reshape(-1, self.dim)
+        if x.shape != (self.num_vertices, self.dim):
+            raise ValueError(f"x must be ({self.num_vertices}, {self.dim}), got {x.shape}")
+        return np.ascontiguousarray(x)
+
+    def _run(self, x: np.ndarray, grad: bool, hess: bool, project: bool
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        m = self.elements.shape[0]
+        k = (self.dim + 1) * self.dim
+        e = np.empty(m)
+        g = np.empty((m, k)) if grad else np.empty((0, k))
+        h = np.empty((m, k, k)) if hess else np.empty((0, k, k))
+        if m:
+            _k.element_terms(self._x(x), self.elements, self.Dm_inv, self.volumes,
+                             self._model_id, self._pa, self._pb, grad, hess, bool(project),
+                             e, g, h)
+        return e, g, h
+
+    def _scatter(self, g: np.ndarray) -> np.ndarray:
+        n = self.num_vertices * self.dim
+        if g.size == 0:
+            return np.zeros(n)
+        return np.bincount(self._dofs.ravel(), weights=g.ravel(), minlength=n)
+
+    def value(self, x: np.ndarray) -> float:
+        """Total energy; +inf if any element has det F <= 0."""
+        e, _, _ = self._run(x, False, False, False)
+        return float(e.sum())
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        """Flat (n*d,) gradient."""
+        _, g, _ = self._run(x, True, False, False)
+        return self._scatter(g)
+
+    def element_hessians(self, x: np.ndarray, project: bool = True) -> np.ndarray:
+        """(m, k, k) element Hessians; PSD-projected per element if ``project`` else exact."""
+        _, _, h = self._run(x, False, True, project)
+        return h
+
+    def element_dofs(self) -> np.ndarray:
+        """(m, k) global DOF indices (vertex*d + coord) of each element block."""
+        return self._dofs
+
+    def value_gradient_hessian(self, x: np.ndarray, project: bool = True
+                               ) -> tuple[float, np.ndarray, np.ndarray]:
+        """(energy, flat gradient, element Hessians (m,k,k)) from one fused kernel pass."""
+        e, g, h = self._run(x, True, True, project)
+        return float(e.sum()), self._scatter(g), h
+
+    def min_jacobian(self, x: np.ndarray) -> float:
+        """Smallest det F over the elements (diagnostics; +inf with no elements)."""
+        if self.elements.shape[0] == 0:
+            return float("inf")
+        return float(_k.element_jacobians(self._x(x), self.elements, self.Dm_inv).min())
