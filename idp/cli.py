@@ -125,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--only", nargs="*", help="scene names to run")
     b.add_argument("-o", "--output", default="bench/results")
     b.add_argument("--threads", type=int)
+    b.add_argument("--steps", type=int, help="override every scene's step count (for quick looks)")
     b.set_defaults(func=_cmd_bench)
     return p
 
