@@ -48,6 +48,15 @@ class RunResult:
     parts: list = field(default_factory=list)
 
 
+def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
+    """Write the finished state atomically (temp file + rename): an interruption never leaves a torn file."""
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, x=x, step=step,
+             kappa=system.contact.kappa if system.contact else 0.0,
+             kappa_max=system.contact.kappa_max if system.contact else 0.0)
+    tmp.replace(path)
+
+
 def _fill_fraction(system, x) -> float | None:
     cage = system.meta.get("cage_volume")
     if not cage:
@@ -162,9 +171,7 @@ def run_simulation(
             stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
             if last or stationary or step % settings.write_every == 0:
                 writer.write(step, x, time=step * math.sqrt(system.h))
-            np.savez(checkpoint, x=x, step=step,
-                     kappa=system.contact.kappa if system.contact else 0.0,
-                     kappa_max=system.contact.kappa_max if system.contact else 0.0)
+            _save_checkpoint(checkpoint, x, step, system)
             if progress is not None:
                 post = {"its": res.iterations, "contacts": res.num_contacts}
                 if fill is not None:
