@@ -74,3 +74,44 @@ def restrict_collision_hessian(H: sp.spmatrix, collision_dof_to_free: np.ndarray
     c = collision_dof_to_free[H.col]
     keep = (r >= 0) & (c >= 0)
     return sp.csr_matrix((H.data[keep], (r[keep], c[keep])), shape=(n_free, n_free))
+
+
+class StablePattern:
+    """Keeps the Newton matrix's sparsity pattern stable across iterations.
+
+    Contact couplings come and go between Newton iterations, and every new pattern costs a fresh
+    ordering + symbolic factorisation. This class stores the union of the patterns seen so far and
+    returns each matrix on that union (absent entries as explicit zeros), so the factorisation's
+    symbolic analysis is reused until a genuinely new coupling appears. The union is reset when it
+    grows beyond ``max_growth`` × the current matrix's entries, to bound the extra fill.
+    """
+
+    def __init__(self, max_growth: float = 1.5):
+        self.max_growth = max_growth
+        self._union: sp.csr_matrix | None = None
+        self.resets = 0
+        self.grows = 0
+
+    def apply(self, H: sp.csr_matrix) -> sp.csr_matrix:
+        H = H.tocsr()
+        if self._union is None or self._union.shape != H.shape:
+            self._union = _structure(H)
+            self.resets += 1
+            return H
+        merged = self._union + H
+        if merged.nnz != self._union.nnz:
+            if merged.nnz > self.max_growth * H.nnz:
+                self._union = _structure(H)
+                self.resets += 1
+                return H
+            self._union = _structure(merged)
+            self.grows += 1
+        merged.sort_indices()
+        return merged
+
+
+def _structure(H: sp.csr_matrix) -> sp.csr_matrix:
+    z = H.copy()
+    z.sort_indices()
+    z.data = np.zeros_like(z.data)
+    return z
