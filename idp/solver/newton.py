@@ -31,6 +31,7 @@ class NewtonSettings:
     inversion_eta: float = 0.1
     check_every_iterate: bool = False
     min_alpha: float = 1e-12
+    warm_start: bool = True
 
 
 @dataclass
@@ -46,6 +47,7 @@ class NewtonResult:
     ccd_alphas: list = field(default_factory=list)      # CCD bound per iteration (1 = not limiting)
     inversion_alphas: list = field(default_factory=list)
     gradient_descent_fallbacks: int = 0
+    warm_start_alpha: float = 0.0                       # fraction of the warm-start move taken (0 = none)
     num_contacts: int = 0
     kappa: float = 0.0
     energy: float = 0.0
@@ -102,8 +104,43 @@ class StepSolver:
         g_el = s.inertia.gradient(x, x_prev) + s.h * s.elastic_gradient(x)
         s.contact.initialize_kappa(ev, np.ascontiguousarray(g_el[s.collision_dofs]), s.average_mass)
 
+    def _check_iterate(self, x, it: int, res: NewtonResult) -> None:
+        """Independent certificate of an accepted iterate (only with ``check_every_iterate``)."""
+        if not self.settings.check_every_iterate or self.certifier is None:
+            return
+        t = time.perf_counter()
+        cert = self.certifier.check(x)
+        self.iterate_checks += 1
+        res.timings["check"] += time.perf_counter() - t
+        if not cert.ok:
+            what = "the warm-start iterate" if it == 0 else f"Newton iterate {it}"
+            raise CertificateError(f"{what} failed the injectivity check: {cert.describe()}")
+
+    def _filtered_step(self, x, P, x_prev, energy, ev, res):
+        """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
+        halved until the step energy does not increase (plain decrease, as the reference)."""
+        s, cfg = self.system, self.settings
+        alpha_inv = 1.0
+        for body in s.bodies:
+            alpha_inv = min(alpha_inv, max_inversion_free_step(x, P, body.elastic.elements, cfg.inversion_eta))
+        alpha = alpha_inv
+        alpha_ccd = 1.0
+        if s.contact is not None and alpha > 0:
+            alpha_ccd = s.contact.max_collision_free_step(x, x + alpha * P)
+            alpha *= alpha_ccd
+        while alpha > cfg.min_alpha:
+            xt = x + alpha * P
+            evt = self._contact_eval(xt, res) if ev is not None else None
+            et, elt, bt = self._energy(xt, x_prev, evt)
+            if et <= energy:
+                return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
+            alpha *= 0.5
+        return False, 0.0, alpha_inv, alpha_ccd, None
+
     # -- main loop -------------------------------------------------------------------------
-    def solve(self, x_prev: np.ndarray) -> tuple[np.ndarray, NewtonResult]:
+    def solve(self, x_prev: np.ndarray, guess: np.ndarray | None = None) -> tuple[np.ndarray, NewtonResult]:
+        """Minimise the step energy from ``x_prev``. ``guess`` (e.g. x_t plus the previous step's motion)
+        is tried first: the filtered, energy-decreasing part of the move towards it becomes the first iterate."""
         s, cfg = self.system, self.settings
         res = NewtonResult()
         x = x_prev.copy()
@@ -117,6 +154,18 @@ class StepSolver:
         energy, el, bar = self._energy(x, x_prev, ev)
         if not math.isfinite(energy):
             raise SolverError("step energy is not finite at the start of the step (inverted element or contact at zero distance)")
+        if guess is not None and np.any(guess != x):
+            t = time.perf_counter()
+            P = guess - x
+            P.reshape(-1)[~s.free_mask] = 0.0
+            ok, alpha, _, _, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
+            res.timings["line_search_ccd"] += time.perf_counter() - t
+            if ok:
+                x, ev, energy, el, bar = trial
+                res.warm_start_alpha = alpha
+                if ev is not None:
+                    prev_min_d = s.contact.min_distance(ev)
+                self._check_iterate(x, 0, res)
 
         for it in range(1, cfg.max_iterations + 1):
             res.iterations = it
@@ -144,28 +193,13 @@ class StepSolver:
             res.decrement = float(np.abs(p_free).max(initial=0.0)) / sqrt_h
             converged = res.decrement <= cfg.tol
 
-            # feasible step: inversion filter, then CCD on the shortened step
+            # feasible step: inversion filter, then CCD on the shortened step, then backtracking
             t = time.perf_counter()
-            alpha_inv = 1.0
-            for body in s.bodies:
-                alpha_inv = min(alpha_inv, max_inversion_free_step(x, P, body.elastic.elements, cfg.inversion_eta))
-            alpha = alpha_inv
-            alpha_ccd = 1.0
-            if s.contact is not None and alpha > 0:
-                alpha_ccd = s.contact.max_collision_free_step(x, x + alpha * P)
-                alpha *= alpha_ccd
+            accepted, alpha, alpha_inv, alpha_ccd, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
             res.inversion_alphas.append(alpha_inv)
             res.ccd_alphas.append(alpha_ccd)
-            # backtracking on the step energy (plain decrease)
-            accepted = False
-            while alpha > cfg.min_alpha:
-                xt = x + alpha * P
-                evt = self._contact_eval(xt, res) if ev is not None else None
-                et, elt, bt = self._energy(xt, x_prev, evt)
-                if et <= energy:
-                    accepted = True
-                    break
-                alpha *= 0.5
+            if accepted:
+                xt, evt, et, elt, bt = trial
             res.timings["line_search_ccd"] += time.perf_counter() - t
             if not accepted:
                 res.alphas.append(0.0)
@@ -184,13 +218,7 @@ class StepSolver:
                 prev_min_d = min_d
                 if s.contact.kappa != kappa_before:  # the objective changed: re-evaluate it
                     energy, el, bar = self._energy(x, x_prev, ev)
-            if cfg.check_every_iterate and self.certifier is not None:
-                t = time.perf_counter()
-                cert = self.certifier.check(x)
-                self.iterate_checks += 1
-                res.timings["check"] += time.perf_counter() - t
-                if not cert.ok:
-                    raise CertificateError(f"Newton iterate {it} failed the injectivity check: {cert.describe()}")
+            self._check_iterate(x, it, res)
             if converged:
                 res.converged = True
                 break
