@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from idp.errors import CertificateError, SolverError
-from idp.solver.assembly import StablePattern, restrict_collision_hessian
+from idp.solver.assembly import restrict_collision_hessian
 from idp.solver.inversion_filter import max_inversion_free_step
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
 
@@ -66,7 +66,6 @@ class StepSolver:
         self.linear = linear_solver
         self.certifier = certifier
         self.iterate_checks = 0
-        self.pattern = StablePattern()
 
     # -- energy pieces ----------------------------------------------------------------
     def _contact_eval(self, x, res: NewtonResult):
@@ -178,7 +177,7 @@ class StepSolver:
 
             t = time.perf_counter()
             try:
-                self.linear.factorize(self.pattern.apply(H))
+                self.linear.factorize(H)
                 p_free = -self.linear.solve(g)
                 if not np.all(np.isfinite(p_free)):
                     raise NotPositiveDefinite("non-finite Newton direction")
