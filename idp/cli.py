@@ -51,6 +51,8 @@ def _print_summary(result, out: Path) -> None:
     ]
     if fill is not None:
         lines.insert(0, f"fill fraction:      {100 * fill:.2f} % of the cage volume (start {100 * s['initial_fill_fraction']:.2f} %)")
+    if s.get("dhat") is not None:
+        lines.append(f"contact distance:   d̂ = {s['dhat']:.4g} (absolute)")
     lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
     print("\n".join(lines))
 

@@ -209,6 +209,7 @@ def run_simulation(
         "uncertified_frames": uncertified,
         "all_certified": uncertified == 0,
         "fill_fraction": _fill_fraction(system, x),
+        "dhat": system.meta.get("dhat"),
         "initial_fill_fraction": fill0,
         "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),
         "timings": {k: float(sum(r["timings"].get(k, 0.0) for r in records)) for k in (records[0]["timings"] if records else {})},
