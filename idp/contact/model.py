@@ -100,11 +100,23 @@ class ContactModel:
         return (self.to_full[:, None] * d + np.arange(d)[None, :]).ravel()
 
     # -- barrier --------------------------------------------------------------
-    def evaluate(self, x: np.ndarray) -> ContactEvaluation:
+    def evaluate(self, x: np.ndarray, candidates=None) -> ContactEvaluation:
+        """Active collision set at x. ``candidates`` from :meth:`sweep_candidates` (valid for any point of
+        the swept segment) replaces the broad phase, so line-search trials skip it."""
         vs = self.surface_positions(x)
         c = ipctk.NormalCollisions()
-        c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
+        if candidates is not None:
+            c.build(candidates, self.mesh, vs, self.dhat, 0.0)
+        else:
+            c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
         return ContactEvaluation(c, vs, len(c))
+
+    def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
+        """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes
+        within d̂ anywhere on the segment is in the set (used for CCD and for the line-search trials)."""
+        cand = ipctk.Candidates()
+        cand.build(self.mesh, self.surface_positions(x0), self.surface_positions(x1), self.dhat, self.broad_phase())
+        return cand
 
     def potential(self, kappa: float | None = None):
         k = self.kappa if kappa is None else kappa
@@ -162,12 +174,12 @@ class ContactModel:
         return self.kappa
 
     # -- CCD and checks -------------------------------------------------------
-    def max_collision_free_step(self, x0: np.ndarray, x1: np.ndarray) -> float:
-        return float(
-            ipctk.compute_collision_free_stepsize(
-                self.mesh, self.surface_positions(x0), self.surface_positions(x1), 0.0, self.broad_phase(), self._ccd
-            )
-        )
+    def max_collision_free_step(self, x0: np.ndarray, x1: np.ndarray, candidates=None) -> float:
+        """Largest α in [0, 1] such that the linear move x0 → x0 + α(x1 − x0) is collision-free (CCD)."""
+        v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
+        if candidates is not None:
+            return float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self._ccd))
+        return float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), self._ccd))
 
     def has_intersections(self, x: np.ndarray) -> bool:
         return bool(ipctk.has_intersections(self.mesh, self.surface_positions(x), self.broad_phase()))

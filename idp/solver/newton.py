@@ -68,11 +68,11 @@ class StepSolver:
         self.iterate_checks = 0
 
     # -- energy pieces ----------------------------------------------------------------
-    def _contact_eval(self, x, res: NewtonResult):
+    def _contact_eval(self, x, res: NewtonResult, candidates=None):
         if self.system.contact is None:
             return None
         t = time.perf_counter()
-        ev = self.system.contact.evaluate(x)
+        ev = self.system.contact.evaluate(x, candidates)
         res.timings["contact_build"] += time.perf_counter() - t
         return ev
 
@@ -124,12 +124,15 @@ class StepSolver:
             alpha_inv = min(alpha_inv, max_inversion_free_step(x, P, body.elastic.elements, cfg.inversion_eta))
         alpha = alpha_inv
         alpha_ccd = 1.0
+        cand = None
         if s.contact is not None and alpha > 0:
-            alpha_ccd = s.contact.max_collision_free_step(x, x + alpha * P)
+            x_end = x + alpha * P
+            cand = s.contact.sweep_candidates(x, x_end)
+            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand)
             alpha *= alpha_ccd
         while alpha > cfg.min_alpha:
             xt = x + alpha * P
-            evt = self._contact_eval(xt, res) if ev is not None else None
+            evt = self._contact_eval(xt, res, cand) if ev is not None else None
             et, elt, bt = self._energy(xt, x_prev, evt)
             if et <= energy:
                 return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)

@@ -111,3 +111,18 @@ def test_initial_kappa_is_positive_and_update_doubles_when_distance_shrinks():
     tiny = 1e-10 * cm.bbox_diagonal
     k1 = cm.update_kappa(2 * tiny, tiny)
     assert k1 == pytest.approx(2 * k0)
+
+
+def test_swept_candidates_give_the_same_collision_sets_along_the_segment():
+    rng = np.random.default_rng(3)
+    x, surf, n_dyn = two_boxes(0.05, rng)
+    cm = ContactModel(x, surf, n_dyn, dhat=0.02, kappa=1.0)
+    y = x.copy()
+    y[n_dyn // 2:, 2] -= 0.04
+    cand = cm.sweep_candidates(x, y)
+    assert cm.max_collision_free_step(x, y, cand) == pytest.approx(cm.max_collision_free_step(x, y), rel=1e-6)
+    for a in (0.0, 0.3, 0.7, 1.0):
+        z = x + a * (y - x)
+        e1, e2 = cm.evaluate(z), cm.evaluate(z, cand)
+        assert e1.num_active == e2.num_active
+        assert cm.value(e1) == pytest.approx(cm.value(e2), rel=1e-12)
