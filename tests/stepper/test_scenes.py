@@ -124,3 +124,21 @@ def test_stationary_stop_and_resume(tmp_path):
     simulate(s, tmp_path / "res", steps=2, progress=False)
     res2 = simulate(s, tmp_path / "res", steps=4, progress=False, resume=True)
     assert [r["step"] for r in res2.step_records] == [3, 4]
+
+
+def test_fixed_vertices_by_box_and_indices_do_not_move(tmp_path):
+    objs = [{
+        "name": "slab", "generate": {"shape": "tet_box", "lo": [-0.3, -0.1, -0.3], "hi": [0.3, 0.1, 0.3], "resolution": [3, 2, 3]},
+        "rest_shape": {"scale": [1.0, 1.5, 1.0]},  # wants to be 1.5× taller: it stretches away from the pinned bottom
+        "fixed": [{"box": [[-1, -0.2, -1], [1, -0.09, 1]]}, {"indices": [5]}],
+    }]
+    s = scene(objs, steps=3, tol=1e-2)
+    res = simulate(s, tmp_path, progress=False)
+    from idp.mesh.generate import tet_box
+
+    x0 = tet_box((-0.3, -0.1, -0.3), (0.3, 0.1, 0.3), (3, 2, 3)).vertices
+    bottom = np.flatnonzero(x0[:, 1] < -0.09)
+    assert bottom.size > 0
+    assert np.array_equal(res.x[bottom], x0[bottom]) and np.array_equal(res.x[5], x0[5])
+    top = np.flatnonzero(x0[:, 1] > 0.09)
+    assert res.x[top, 1].mean() > 0.1 + 0.02  # the free part moved
