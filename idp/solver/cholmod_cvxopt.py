@@ -75,36 +75,31 @@ class CholmodSolver(LinearSolver):
         self.reuse_ordering = bool(reuse_ordering)
         self._pattern = PatternCache()
         self._sel: np.ndarray | None = None  # entries of the CSR arrays that form tril(A) in CSC order
+        self._pos: np.ndarray | None = None  # where those entries sit in the analysed pattern
         self._S: cvxopt.spmatrix | None = None
         self._F: object | None = None
         self._perm: np.ndarray | None = None
+        self._keys: np.ndarray | None = None  # sorted keys col*n + row of the analysed lower triangle
         self._factored = False
+        self.union_growth = 1.3  # analyse the union of old and new patterns while it stays this small
 
     # ------------------------------------------------------------------ pattern work
-    def _analyse(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, n: int) -> None:
-        """Ordering, lower-triangle map, cvxopt matrix and symbolic factorisation."""
+    def _analyse_lower(self, keys: np.ndarray, vals: np.ndarray, n: int) -> None:
+        """Ordering + symbolic factorisation of the lower-triangle pattern given by ``keys``."""
         self._F = None
         self._pattern.clear()
         t0 = time.perf_counter()
+        col, row = keys // n, keys % n
         if self.reuse_ordering and self._perm is not None and self._perm.shape[0] == n:
             perm = self._perm
         elif self.use_metis:
-            perm = nested_dissection_ordering(indptr, indices, n, self.dofs_per_node)
+            G = sp.csr_matrix((np.ones(keys.size), (row, col)), shape=(n, n))
+            G = (G + G.T).tocsr()
+            perm = nested_dissection_ordering(G.indptr, G.indices, n, self.dofs_per_node)
         else:
             perm = None
         t1 = time.perf_counter()
-        # Symmetric A: the CSR row r holds column r of A, so the entries with column
-        # index >= r are column r of tril(A), already in CSC order (sorted rows).
-        rowof = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
-        sel = np.flatnonzero(indices >= rowof)
-        if n > 0 and np.count_nonzero(indices[sel] == rowof[sel]) != n:
-            raise NotPositiveDefinite("matrix has a structurally missing diagonal entry")
-        S = cvxopt.spmatrix(
-            cvxopt.matrix(data[sel]),
-            cvxopt.matrix(indices[sel].astype(np.int64)),
-            cvxopt.matrix(rowof[sel]),
-            (n, n),
-        )
+        S = cvxopt.spmatrix(cvxopt.matrix(vals), cvxopt.matrix(row), cvxopt.matrix(col), (n, n))
         opts = {"supernodal": 2, "postorder": True, "nmethods": 1 if perm is not None else 0}
         with _options(**opts):
             if perm is not None:
@@ -112,11 +107,51 @@ class CholmodSolver(LinearSolver):
             else:
                 F = cholmod.symbolic(S, uplo="L")
         t2 = time.perf_counter()
-        self._sel, self._S, self._F, self._perm = sel, S, F, perm
-        self._pattern.store(indptr, indices)
+        self._S, self._F, self._perm, self._keys = S, F, perm, keys
         self.stats["ordering"] += t1 - t0
         self.stats["symbolic"] += t2 - t1
         self.stats["symbolic_analyses"] += 1
+
+    def _load_changed_pattern(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, n: int) -> None:
+        """A pattern other than the last one: reuse the symbolic factorisation when it is a subset of the
+        analysed pattern (CHOLMOD then factors with explicit zeros), else analyse the union of the two
+        patterns (so couplings that come and go stop triggering analyses), or the new one alone when the
+        union would grow too large."""
+        rowof = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+        sel = np.flatnonzero(indices >= rowof)
+        if n > 0 and np.count_nonzero(indices[sel] == rowof[sel]) != n:
+            raise NotPositiveDefinite("matrix has a structurally missing diagonal entry")
+        keys = rowof[sel] * n + indices[sel]
+        vals = data[sel]
+        self._sel = sel
+        if self._keys is not None and self._S is not None and self._S.size[0] == n:
+            pos = np.searchsorted(self._keys, keys)
+            inside = pos < self._keys.size
+            inside[inside] = self._keys[pos[inside]] == keys[inside]
+            if inside.all():
+                self._pos = pos
+                self._set_values(vals)
+                self.stats["symbolic_reuses"] += 1
+                self.stats["subset_reuses"] = self.stats.get("subset_reuses", 0) + 1
+                return
+            union = np.union1d(self._keys, keys)
+            if union.size <= self.union_growth * keys.size:
+                self._pos = np.searchsorted(union, keys)
+                full = np.zeros(union.size)
+                full[self._pos] = vals
+                self._analyse_lower(union, full, n)
+                return
+        self._pos = np.arange(keys.size)
+        self._analyse_lower(keys, vals, n)
+
+    def _set_values(self, vals: np.ndarray) -> None:
+        """Copy the lower-triangle values into the analysed (possibly larger) pattern."""
+        if self._pos.size == self._keys.size:
+            self._S.V = cvxopt.matrix(vals)
+        else:
+            full = np.zeros(self._keys.size)
+            full[self._pos] = vals
+            self._S.V = cvxopt.matrix(full)
 
     # ------------------------------------------------------------------ interface
     def factorize(self, A: sp.spmatrix) -> None:
@@ -126,10 +161,11 @@ class CholmodSolver(LinearSolver):
         self._factored = False
         if self._pattern.same(indptr, indices) and self._S is not None:
             t0 = time.perf_counter()  # the value copy counts as numeric time
-            self._S.V = cvxopt.matrix(data[self._sel])
+            self._set_values(data[self._sel])
             self.stats["symbolic_reuses"] += 1
         else:
-            self._analyse(indptr, indices, data, n)
+            self._load_changed_pattern(indptr, indices, data, n)
+            self._pattern.store(indptr, indices)
             t0 = time.perf_counter()
         self.n = n
         try:
