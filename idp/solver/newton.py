@@ -31,7 +31,6 @@ class NewtonSettings:
     inversion_eta: float = 0.1
     check_every_iterate: bool = False
     min_alpha: float = 1e-12
-    warm_start: bool = True
 
 
 @dataclass
@@ -47,7 +46,6 @@ class NewtonResult:
     ccd_alphas: list = field(default_factory=list)      # CCD bound per iteration (1 = not limiting)
     inversion_alphas: list = field(default_factory=list)
     gradient_descent_fallbacks: int = 0
-    warm_start_alpha: float = 0.0                       # fraction of the warm-start move taken (0 = none)
     num_contacts: int = 0
     kappa: float = 0.0
     energy: float = 0.0
@@ -112,8 +110,7 @@ class StepSolver:
         self.iterate_checks += 1
         res.timings["check"] += time.perf_counter() - t
         if not cert.ok:
-            what = "the warm-start iterate" if it == 0 else f"Newton iterate {it}"
-            raise CertificateError(f"{what} failed the injectivity check: {cert.describe()}")
+            raise CertificateError(f"Newton iterate {it} failed the injectivity check: {cert.describe()}")
 
     def _filtered_step(self, x, P, x_prev, energy, ev, res):
         """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
@@ -140,9 +137,8 @@ class StepSolver:
         return False, 0.0, alpha_inv, alpha_ccd, None
 
     # -- main loop -------------------------------------------------------------------------
-    def solve(self, x_prev: np.ndarray, guess: np.ndarray | None = None) -> tuple[np.ndarray, NewtonResult]:
-        """Minimise the step energy from ``x_prev``. ``guess`` (e.g. x_t plus the previous step's motion)
-        is tried first: the filtered, energy-decreasing part of the move towards it becomes the first iterate."""
+    def solve(self, x_prev: np.ndarray) -> tuple[np.ndarray, NewtonResult]:
+        """Minimise the step energy S(x) starting from ``x_prev`` = x_t."""
         s, cfg = self.system, self.settings
         res = NewtonResult()
         x = x_prev.copy()
@@ -156,18 +152,6 @@ class StepSolver:
         energy, el, bar = self._energy(x, x_prev, ev)
         if not math.isfinite(energy):
             raise SolverError("step energy is not finite at the start of the step (inverted element or contact at zero distance)")
-        if guess is not None and np.any(guess != x):
-            t = time.perf_counter()
-            P = guess - x
-            P.reshape(-1)[~s.free_mask] = 0.0
-            ok, alpha, _, _, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
-            res.timings["line_search_ccd"] += time.perf_counter() - t
-            if ok:
-                x, ev, energy, el, bar = trial
-                res.warm_start_alpha = alpha
-                if ev is not None:
-                    prev_min_d = s.contact.min_distance(ev)
-                self._check_iterate(x, 0, res)
 
         for it in range(1, cfg.max_iterations + 1):
             res.iterations = it

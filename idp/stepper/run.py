@@ -111,7 +111,6 @@ def run_simulation(
 
     t_run = time.perf_counter()
     x = system.x
-    x_before = None  # state before the last step, for the warm start
     total_its, uncertified, nonconverged = 0, 0, 0
     stopped_reason = "step count reached"
     step = start_step
@@ -120,13 +119,12 @@ def run_simulation(
         for step in range(start_step + 1, settings.steps + 1):
             t_step = time.perf_counter()
             system.set_rest_shape_for_step(step)
-            guess = x + (x - x_before) if (newton.warm_start and x_before is not None) else None
-            x_new, res = solver.solve(x, guess)
+            x_new, res = solver.solve(x)
             t_cert = time.perf_counter()
             cert = certifier.check(x_new)
             t_cert = time.perf_counter() - t_cert
             max_move = float(np.abs(x_new - x).max(initial=0.0))
-            x_before, x = x, x_new
+            x = x_new
             system.x = x
             total_its += res.iterations
             step_time = time.perf_counter() - t_step
@@ -146,7 +144,6 @@ def run_simulation(
                 "ccd_alphas": res.ccd_alphas,
                 "inversion_alphas": res.inversion_alphas,
                 "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
-                "warm_start_alpha": res.warm_start_alpha,
                 "contacts": res.num_contacts,
                 "kappa": res.kappa,
                 "energy": res.energy,
