@@ -31,39 +31,44 @@ class FixedPatternAssembler:
     def __init__(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap):
         self.dof_map = dof_map
         n = dof_map.num_free
-        rows_all, cols_all, valid_all = [], [], []
+        key_parts = []
         for dofs in element_dofs:
             k = dofs.shape[1]
-            local = dof_map.global_to_free[dofs]  # (m, k)
-            r = np.repeat(local, k, axis=1).ravel()
-            c = np.tile(local, (1, k)).ravel()
-            valid = (r >= 0) & (c >= 0)
-            rows_all.append(r)
-            cols_all.append(c)
-            valid_all.append(valid)
-        diag = np.arange(n, dtype=np.int64)
-        rows = np.concatenate([*(r[v] for r, v in zip(rows_all, valid_all)), diag])
-        cols = np.concatenate([*(c[v] for c, v in zip(cols_all, valid_all)), diag])
-        keys = rows * n + cols
-        unique_keys, scatter = np.unique(keys, return_inverse=True)
+            local = dof_map.global_to_free[dofs]  # (m, k), -1 for pinned DOFs
+            keys = (local[:, :, None] * n + local[:, None, :]).reshape(-1)
+            keys[((local[:, :, None] < 0) | (local[:, None, :] < 0)).reshape(-1)] = -1
+            key_parts.append(keys)
+        diag = np.arange(n, dtype=np.int64) * (n + 1)
+        all_keys = np.concatenate([*key_parts, diag])
+        del key_parts
+        unique_keys, scatter = np.unique(all_keys, return_inverse=True)
+        del all_keys
+        has_pinned = unique_keys.size and unique_keys[0] < 0
+        if has_pinned:  # entries touching a pinned DOF go to a dummy slot (index nnz) that is dropped
+            unique_keys = unique_keys[1:]
+            scatter -= 1
+            scatter[scatter < 0] = unique_keys.size
         self.nnz = int(unique_keys.size)
-        pattern_rows = unique_keys // n
+        scatter = scatter.astype(np.int32 if self.nnz < 2**31 - 1 else np.int64)
         self.indices = (unique_keys % n).astype(np.int32)
         self.indptr = np.zeros(n + 1, dtype=np.int32)
-        np.cumsum(np.bincount(pattern_rows, minlength=n), out=self.indptr[1:])
-        n_elem_entries = [int(v.sum()) for v in valid_all]
-        offsets = np.cumsum([0, *n_elem_entries])
+        np.cumsum(np.bincount(unique_keys // n, minlength=n), out=self.indptr[1:])
+        sizes = [d.shape[0] * d.shape[1] ** 2 for d in element_dofs]
+        offsets = np.cumsum([0, *sizes])
         self._element_scatter = [scatter[offsets[i]: offsets[i + 1]] for i in range(len(element_dofs))]
-        self._element_valid = valid_all
         self._diag_scatter = scatter[offsets[-1]:]
         self.shape = (n, n)
 
+    def assemble_data(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> np.ndarray:
+        """Values of Σ_i weights[i]·blocks[i] + diag(``diagonal``) on the fixed pattern."""
+        data = np.bincount(self._diag_scatter, weights=diagonal, minlength=self.nnz + 1)
+        for blocks, w, idx in zip(element_blocks, weights, self._element_scatter):
+            data += w * np.bincount(idx, weights=blocks.reshape(-1), minlength=self.nnz + 1)
+        return data[: self.nnz]
+
     def assemble(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> sp.csr_matrix:
         """Σ_i weights[i]·blocks[i] scattered into the pattern, plus ``diagonal`` (free DOFs)."""
-        data = np.bincount(self._diag_scatter, weights=diagonal, minlength=self.nnz)
-        for blocks, w, idx, valid in zip(element_blocks, weights, self._element_scatter, self._element_valid):
-            vals = blocks.reshape(-1)[valid]
-            data += w * np.bincount(idx, weights=vals, minlength=self.nnz)
+        data = self.assemble_data(element_blocks, weights, diagonal)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
 
 
