@@ -134,8 +134,9 @@ class CholmodSolver(LinearSolver):
                 self.stats["symbolic_reuses"] += 1
                 self.stats["subset_reuses"] = self.stats.get("subset_reuses", 0) + 1
                 return
-            union = np.union1d(self._keys, keys)
-            if union.size <= self.union_growth * keys.size:
+            new = keys[~inside]  # sorted and unique, like keys
+            if self._keys.size + new.size <= self.union_growth * keys.size:
+                union = np.insert(self._keys, np.searchsorted(self._keys, new), new)
                 self._pos = np.searchsorted(union, keys)
                 full = np.zeros(union.size)
                 full[self._pos] = vals
