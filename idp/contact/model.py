@@ -54,7 +54,7 @@ class ContactModel:
         num_dynamic_vertices: int,
         dhat: float,
         *,
-        ccd: str = "additive",
+        ccd: str = "tight_inclusion",
         broad_phase: str = "lbvh",
         kappa: float | None = None,
         adaptive_kappa: bool = True,

@@ -157,7 +157,7 @@ class ContactConfig(_Model):
     dhat_mode: Literal["absolute", "relative"] = "absolute"
     kappa: Union[Literal["auto"], float] = "auto"
     adaptive_kappa: Bool = True
-    ccd: Literal["additive", "tight_inclusion"] = "additive"
+    ccd: Literal["additive", "tight_inclusion"] = "tight_inclusion"
     broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
     preserve_input_intersections: Bool = False
 
