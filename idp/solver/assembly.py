@@ -28,8 +28,72 @@ class FreeDofMap:
 class FixedPatternAssembler:
     """Assembles Σ_e H_e (element blocks) + diag(d) into a CSR matrix with a pattern fixed at construction."""
 
-    def __init__(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap):
+    def __init__(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap, dim: int | None = None):
+        """``element_dofs``: per energy, (m, k) global DOFs of each element (vertex·d + coordinate).
+        With ``dim`` given and whole vertices pinned, the pattern is built per vertex block, which needs
+        d² times less memory than building it per DOF."""
         self.dof_map = dof_map
+        n = dof_map.num_free
+        self.shape = (n, n)
+        whole = dim is not None and _pins_whole_vertices(dof_map.free_mask, dim)
+        if whole:
+            self._build_blocks(element_dofs, dof_map, dim)
+        else:
+            self._build_generic(element_dofs, dof_map)
+
+    def _build_blocks(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap, d: int) -> None:
+        """Vertex-level pattern expanded to d×d blocks (every vertex fully free or fully pinned)."""
+        vfree = dof_map.free_mask.reshape(-1, d)[:, 0]
+        fv = np.full(vfree.size, -1, dtype=np.int64)
+        nfv = int(vfree.sum())
+        fv[vfree] = np.arange(nfv)
+        pair_keys = []
+        for dofs in element_dofs:
+            L = fv[dofs[:, ::d] // d]  # (m, nv) free-vertex ids
+            keys = L[:, :, None] * nfv + L[:, None, :]
+            keys[(L[:, :, None] < 0) | (L[:, None, :] < 0)] = -1
+            pair_keys.append(keys)
+        diag_keys = np.arange(nfv, dtype=np.int64) * (nfv + 1)
+        ukeys = np.unique(np.concatenate([k.ravel() for k in pair_keys] + [diag_keys]))
+        ukeys = ukeys[ukeys >= 0]
+        vrow, vcol = ukeys // nfv, ukeys % nfv
+        vptr = np.zeros(nfv + 1, dtype=np.int64)
+        np.cumsum(np.bincount(vrow, minlength=nfv), out=vptr[1:])
+        deg = np.diff(vptr)
+        nnz = int(d * d * ukeys.size)
+        self.nnz = nnz
+        itype = np.int32 if nnz < 2**31 - 1 else np.int64
+        # CSR arrays: rows of vertex i are d consecutive rows of length d·deg(i)
+        self.indptr = np.empty(nfv * d + 1, dtype=itype)
+        self.indptr[:-1] = (d * d * vptr[:-1, None] + np.arange(d)[None, :] * d * deg[:, None]).ravel()
+        self.indptr[-1] = nnz
+        a = np.arange(d)
+        p_in_row = np.arange(ukeys.size) - vptr[vrow]
+        pos_e = d * d * vptr[vrow][:, None, None] + a[None, :, None] * d * deg[vrow][:, None, None] + d * p_in_row[:, None, None] + a[None, None, :]
+        self.indices = np.empty(nnz, dtype=np.int32)
+        self.indices[pos_e.ravel()] = np.broadcast_to(d * vcol[:, None, None] + a[None, None, :], pos_e.shape).ravel()
+
+        def block_positions(vkeys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            e = np.searchsorted(ukeys, vkeys)
+            i = vrow[e]
+            return (d * d * vptr[i] + d * (e - vptr[i])).astype(itype), (d * deg[i]).astype(itype)
+
+        self._element_scatter = []
+        for keys in pair_keys:
+            valid = keys >= 0
+            base = np.full(keys.shape, nnz, dtype=itype)
+            stride = np.zeros(keys.shape, dtype=itype)
+            base[valid], stride[valid] = block_positions(keys[valid])
+            ai = a.astype(itype)
+            pos = (base[:, :, None, :, None] + ai[None, None, :, None, None] * stride[:, :, None, :, None]
+                   + ai[None, None, None, None, :])  # (m, nv, d, nv, d)
+            pos[~np.broadcast_to(valid[:, :, None, :, None], pos.shape)] = nnz
+            self._element_scatter.append(pos.reshape(-1))
+        dbase, dstride = block_positions(diag_keys)
+        self._diag_scatter = (dbase[:, None] + a[None, :] * dstride[:, None] + a[None, :]).ravel()
+
+    def _build_generic(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap) -> None:
+        """DOF-level pattern (any pinning); memory ~ several × m·k² int64 during construction."""
         n = dof_map.num_free
         key_parts = []
         for dofs in element_dofs:
@@ -57,7 +121,6 @@ class FixedPatternAssembler:
         offsets = np.cumsum([0, *sizes])
         self._element_scatter = [scatter[offsets[i]: offsets[i + 1]] for i in range(len(element_dofs))]
         self._diag_scatter = scatter[offsets[-1]:]
-        self.shape = (n, n)
 
     def assemble_data(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> np.ndarray:
         """Values of Σ_i weights[i]·blocks[i] + diag(``diagonal``) on the fixed pattern."""
@@ -70,6 +133,12 @@ class FixedPatternAssembler:
         """Σ_i weights[i]·blocks[i] scattered into the pattern, plus ``diagonal`` (free DOFs)."""
         data = self.assemble_data(element_blocks, weights, diagonal)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
+def _pins_whole_vertices(free_mask: np.ndarray, dim: int) -> bool:
+    """True when every vertex has all its DOFs free or all pinned."""
+    per_vertex = free_mask.reshape(-1, dim)
+    return bool(np.all(per_vertex.all(axis=1) | ~per_vertex.any(axis=1)))
 
 
 def restrict_collision_hessian(H: sp.spmatrix, collision_dof_to_free: np.ndarray, n_free: int) -> sp.csr_matrix:

@@ -54,7 +54,7 @@ class System:
     def __post_init__(self):
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
-        self.assembler = FixedPatternAssembler([b.elastic.element_dofs() for b in self.bodies], self.dof_map)
+        self.assembler = FixedPatternAssembler([b.elastic.element_dofs() for b in self.bodies], self.dof_map, dim=self.dim)
         if self.contact is not None:
             self.collision_dofs = self.contact.collision_dofs()
             self.collision_dof_to_free = self.dof_map.global_to_free[self.collision_dofs]
