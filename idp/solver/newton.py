@@ -125,7 +125,7 @@ class StepSolver:
         if s.contact is not None and alpha > 0:
             x_end = x + alpha * P
             cand = s.contact.sweep_candidates(x, x_end)
-            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand)
+            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev))
             alpha *= alpha_ccd
         while alpha > cfg.min_alpha:
             xt = x + alpha * P

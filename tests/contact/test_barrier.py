@@ -126,3 +126,16 @@ def test_swept_candidates_give_the_same_collision_sets_along_the_segment():
         e1, e2 = cm.evaluate(z), cm.evaluate(z, cand)
         assert e1.num_active == e2.num_active
         assert cm.value(e1) == pytest.approx(cm.value(e2), rel=1e-12)
+
+
+def test_tight_inclusion_falls_back_to_additive_ccd_when_nearly_touching():
+    rng = np.random.default_rng(4)
+    x, surf, n_dyn = two_boxes(0.05, rng)
+    cm = ContactModel(x, surf, n_dyn, dhat=0.01, ccd="tight_inclusion")
+    y = x.copy()
+    y[n_dyn // 2:, 2] -= 0.5
+    a_ti = cm.max_collision_free_step(x, y)
+    assert cm.ccd_fallbacks == 0 and 0 < a_ti < 0.1
+    a_fb = cm.max_collision_free_step(x, y, current_min_distance=1e-12)
+    assert cm.ccd_fallbacks == 1 and 0 < a_fb < 0.1
+    assert not cm.has_intersections(x + a_fb * (y - x))
