@@ -192,7 +192,7 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
             "input_intersecting_pairs": n_pairs}
     system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
     certifier = Certifier(
-        x, all_surface if c.enabled else None, [b.elastic.elements for b in energies],
+        x, all_surface if c.enabled else None, system.elements,
         distance_query=dhat, require_inversion_free=True, preserved_pairs=preserved,
     )
     s = scene.solver
