@@ -75,19 +75,24 @@ def _simplex_grid(counts: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     return lattice, _fix_orientation(lattice, elements)
 
 
+def _box_simplex_mesh(lo, hi, resolution, dim: int, name: str) -> VolumeMesh:
+    """Structured simplex mesh (tets in 3D, triangles in 2D) of the axis-aligned box [lo, hi]."""
+    lo_a, hi_a = _vec(lo, dim, "lo"), _vec(hi, dim, "hi")
+    if np.any(hi_a <= lo_a):
+        raise MeshError(f"{name} needs hi > lo on every axis, got lo={lo!r} hi={hi!r}")
+    counts = _counts(resolution, dim)
+    lattice, elements = _simplex_grid(counts)
+    verts = lo_a + lattice / np.array(counts) * (hi_a - lo_a)
+    return VolumeMesh(verts, elements, source=name)
+
+
 def tet_box(
     lo: Sequence[float] = (-1.0, -1.0, -1.0),
     hi: Sequence[float] = (1.0, 1.0, 1.0),
     resolution: int | Sequence[int] = (4, 4, 4),
 ) -> VolumeMesh:
     """Structured tet mesh of the box [lo, hi]: resolution cells per axis, 6 tets per cell."""
-    lo_a, hi_a = _vec(lo, 3, "lo"), _vec(hi, 3, "hi")
-    if np.any(hi_a <= lo_a):
-        raise MeshError(f"tet_box needs hi > lo on every axis, got lo={lo!r} hi={hi!r}")
-    counts = _counts(resolution, 3)
-    lattice, elements = _simplex_grid(counts)
-    verts = lo_a + lattice / np.array(counts) * (hi_a - lo_a)
-    return VolumeMesh(verts, elements, source="tet_box")
+    return _box_simplex_mesh(lo, hi, resolution, 3, "tet_box")
 
 
 def _cube_to_ball(p: np.ndarray) -> np.ndarray:
@@ -316,13 +321,7 @@ def tri_rectangle(
     resolution: int | Sequence[int] = (4, 4),
 ) -> VolumeMesh:
     """2D triangle mesh (counter-clockwise) of a rectangle, 2 triangles per grid square."""
-    lo_a, hi_a = _vec(lo, 2, "lo"), _vec(hi, 2, "hi")
-    if np.any(hi_a <= lo_a):
-        raise MeshError(f"tri_rectangle needs hi > lo, got lo={lo!r} hi={hi!r}")
-    counts = _counts(resolution, 2)
-    lattice, elements = _simplex_grid(counts)
-    verts = lo_a + lattice / np.array(counts) * (hi_a - lo_a)
-    return VolumeMesh(verts, elements, source="tri_rectangle")
+    return _box_simplex_mesh(lo, hi, resolution, 2, "tri_rectangle")
 
 
 def tri_disk(
