@@ -26,17 +26,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from idp.solver.linear import LinearSolver, ScipySolver, available_solvers, have_pymetis
-
-
-def grid_edges(nx: int) -> np.ndarray:
-    """Edges of the Freudenthal tet subdivision of an nx^3 vertex grid."""
-    idx = np.arange(nx**3).reshape(nx, nx, nx)
-    out = []
-    for d in [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)]:
-        a = idx[: nx - d[0], : nx - d[1], : nx - d[2]]
-        b = idx[d[0] :, d[1] :, d[2] :]
-        out.append(np.stack([a.ravel(), b.ravel()], 1))
-    return np.concatenate(out)
+from idp.solver.grid_matrices import grid_edges
 
 
 def edge_matrix(

@@ -9,6 +9,7 @@ import pytest
 import scipy.sparse as sp
 
 from idp.errors import SolverError
+from idp.solver.grid_matrices import grid_edges
 from idp.solver.linear import (
     LinearSolver,
     NotPositiveDefinite,
@@ -20,17 +21,6 @@ from idp.solver.linear import (
 )
 
 # ----------------------------------------------------------------------------- matrices
-
-
-def grid_edges(nx: int) -> np.ndarray:
-    """Edges of the Freudenthal tet subdivision of an nx^3 vertex grid (14-neighbour stencil)."""
-    idx = np.arange(nx**3).reshape(nx, nx, nx)
-    out = []
-    for d in [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)]:
-        a = idx[: nx - d[0], : nx - d[1], : nx - d[2]]
-        b = idx[d[0] :, d[1] :, d[2] :]
-        out.append(np.stack([a.ravel(), b.ravel()], 1))
-    return np.concatenate(out)
 
 
 def spd_blocks(rng: np.random.Generator, m: int, d: int) -> np.ndarray:
