@@ -56,22 +56,14 @@ class FixedPatternAssembler:
         diag_keys = np.arange(nfv, dtype=np.int64) * (nfv + 1)
         ukeys = np.unique(np.concatenate([k.ravel() for k in pair_keys] + [diag_keys]))
         ukeys = ukeys[ukeys >= 0]
-        vrow, vcol = ukeys // nfv, ukeys % nfv
-        vptr = np.zeros(nfv + 1, dtype=np.int64)
-        np.cumsum(np.bincount(vrow, minlength=nfv), out=vptr[1:])
-        deg = np.diff(vptr)
-        nnz = int(d * d * ukeys.size)
+        layout = BlockLayout(ukeys, nfv, d)
+        self.layout = layout
+        nnz = layout.nnz
         self.nnz = nnz
         itype = np.int32 if nnz < 2**31 - 1 else np.int64
-        # CSR arrays: rows of vertex i are d consecutive rows of length d·deg(i)
-        self.indptr = np.empty(nfv * d + 1, dtype=itype)
-        self.indptr[:-1] = (d * d * vptr[:-1, None] + np.arange(d)[None, :] * d * deg[:, None]).ravel()
-        self.indptr[-1] = nnz
+        self.indptr, self.indices = layout.indptr, layout.indices
+        vrow, vptr, deg = layout.vrow, layout.vptr, layout.deg
         a = np.arange(d)
-        p_in_row = np.arange(ukeys.size) - vptr[vrow]
-        pos_e = d * d * vptr[vrow][:, None, None] + a[None, :, None] * d * deg[vrow][:, None, None] + d * p_in_row[:, None, None] + a[None, None, :]
-        self.indices = np.empty(nnz, dtype=np.int32)
-        self.indices[pos_e.ravel()] = np.broadcast_to(d * vcol[:, None, None] + a[None, None, :], pos_e.shape).ravel()
 
         def block_positions(vkeys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             e = np.searchsorted(ukeys, vkeys)
@@ -94,6 +86,7 @@ class FixedPatternAssembler:
 
     def _build_generic(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap) -> None:
         """DOF-level pattern (any pinning); memory ~ several × m·k² int64 during construction."""
+        self.layout = None
         n = dof_map.num_free
         key_parts = []
         for dofs in element_dofs:
@@ -133,6 +126,49 @@ class FixedPatternAssembler:
         """Σ_i weights[i]·blocks[i] scattered into the pattern, plus ``diagonal`` (free DOFs)."""
         data = self.assemble_data(element_blocks, weights, diagonal)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
+class BlockLayout:
+    """CSR arrays of a matrix made of full d×d blocks at the sorted vertex-pair ``keys`` (row·nfv + col).
+
+    Rows of vertex i are d consecutive CSR rows of length d·deg(i); entry (a, b) of the block at
+    ``keys[e]`` (row vertex i) sits at d²·vptr[i] + a·d·deg(i) + d·(e − vptr[i]) + b."""
+
+    def __init__(self, keys: np.ndarray, nfv: int, d: int):
+        self.keys, self.nfv, self.d = keys, nfv, d
+        self.vrow = keys // nfv
+        vcol = keys % nfv
+        self.vptr = np.zeros(nfv + 1, dtype=np.int64)
+        np.cumsum(np.bincount(self.vrow, minlength=nfv), out=self.vptr[1:])
+        self.deg = np.diff(self.vptr)
+        self.nnz = int(d * d * keys.size)
+        itype = np.int32 if self.nnz < 2**31 - 1 else np.int64
+        a = np.arange(d)
+        self.indptr = np.empty(nfv * d + 1, dtype=itype)
+        self.indptr[:-1] = (d * d * self.vptr[:-1, None] + a[None, :] * d * self.deg[:, None]).ravel()
+        self.indptr[-1] = self.nnz
+        self.indices = np.empty(self.nnz, dtype=np.int32)
+        self.indices[self.positions(np.arange(keys.size)).ravel()] = np.broadcast_to(
+            d * vcol[:, None, None] + a[None, None, :], (keys.size, d, d)).ravel()
+
+    def positions(self, blocks: np.ndarray) -> np.ndarray:
+        """(len(blocks), d, d) CSR positions of the entries of the given block indices."""
+        d, a = self.d, np.arange(self.d)
+        i = self.vrow[blocks]
+        base = d * d * self.vptr[i] + d * (blocks - self.vptr[i])
+        return base[:, None, None] + a[None, :, None] * (d * self.deg[i])[:, None, None] + a[None, None, :]
+
+    def entry_positions(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """CSR position of each DOF entry (rows[k], cols[k]) and whether its block is in the layout."""
+        d = self.d
+        vk = (rows // d) * self.nfv + cols // d
+        e = np.searchsorted(self.keys, vk)
+        found = e < self.keys.size
+        found[found] = self.keys[e[found]] == vk[found]
+        e = np.where(found, e, 0)
+        i = self.vrow[e] if self.keys.size else e
+        pos = d * d * self.vptr[i] + (rows % d) * d * self.deg[i] + d * (e - self.vptr[i]) + cols % d
+        return pos, found
 
 
 def _pins_whole_vertices(free_mask: np.ndarray, dim: int) -> bool:

@@ -90,11 +90,19 @@ class StepSolver:
             _, ge, he = body.elastic.value_gradient_hessian(x, project=True)
             g += s.h * ge
             blocks.append(he)
-        H = s.assembler.assemble(blocks, [s.h] * len(blocks), s.inertia.hessian_diagonal()[s.dof_map.free_dofs])
-        if ev is not None and ev.num_active:
+        weights, diag = [s.h] * len(blocks), s.inertia.hessian_diagonal()[s.dof_map.free_dofs]
+        active = ev is not None and ev.num_active > 0
+        if active:
             g[s.collision_dofs] += s.contact.gradient(ev)
-            H = H + restrict_collision_hessian(s.contact.hessian(ev), s.collision_dof_to_free, s.dof_map.num_free)
-        return g, H
+        if s.contact_pattern is None:
+            H = s.assembler.assemble(blocks, weights, diag)
+            if active:
+                H = H + restrict_collision_hessian(s.contact.hessian(ev), s.collision_dof_to_free, s.dof_map.num_free)
+            return g, H
+        data = s.assembler.assemble_data(blocks, weights, diag)
+        if not active:
+            return g, s.contact_pattern.assemble(data)
+        return g, s.contact_pattern.assemble(data, s.contact.hessian(ev), s.collision_dof_to_free)
 
     def _init_kappa(self, x, x_prev, ev):
         s = self.system

@@ -11,6 +11,7 @@ from idp.energies.elastic import ElasticEnergy
 from idp.energies.inertia import Inertia
 from idp.output.parts import Part
 from idp.solver.assembly import FixedPatternAssembler, FreeDofMap
+from idp.solver.contact_pattern import GrowingBlockPattern
 
 
 @dataclass
@@ -55,9 +56,13 @@ class System:
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
         self.assembler = FixedPatternAssembler([b.elastic.element_dofs() for b in self.bodies], self.dof_map, dim=self.dim)
+        self.contact_pattern = None
         if self.contact is not None:
             self.collision_dofs = self.contact.collision_dofs()
             self.collision_dof_to_free = self.dof_map.global_to_free[self.collision_dofs]
+            kept = self.collision_dof_to_free[self.collision_dof_to_free >= 0]
+            if self.assembler.layout is not None and np.all(np.diff(kept) > 0):
+                self.contact_pattern = GrowingBlockPattern(self.assembler.layout)
         dyn = self.masses[: self.num_dynamic_vertices]
         self.average_mass = float(dyn[dyn > 0].mean()) if np.any(dyn > 0) else 1.0
 

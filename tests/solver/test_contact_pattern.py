@@ -1,0 +1,114 @@
+"""Growing contact pattern: exact values when it grows, a PD majorant when it folds, stable arrays otherwise."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from idp.solver.assembly import FixedPatternAssembler, FreeDofMap, restrict_collision_hessian
+from idp.solver.contact_pattern import GrowingBlockPattern
+
+DIM = 3
+
+
+def _chain_problem(nv=24, pinned=(0, 23)):
+    """Tets along a chain of vertices (so far-apart vertices are not coupled) with some pinned vertices."""
+    rng = np.random.default_rng(0)
+    verts = np.stack([np.arange(i, i + 4) for i in range(nv - 3)])
+    dofs = (verts[:, :, None] * DIM + np.arange(DIM)).reshape(len(verts), -1)
+    vfree = np.ones(nv, dtype=bool)
+    vfree[list(pinned)] = False
+    dmap = FreeDofMap(np.repeat(vfree, DIM))
+    asm = FixedPatternAssembler([dofs], dmap, dim=DIM)
+    A = rng.standard_normal((len(verts), 12, 12))
+    blocks = np.einsum("mij,mkj->mik", A, A)  # PSD element blocks
+    diag = 1.0 + rng.random(dmap.num_free)
+    return rng, dmap, asm, blocks, diag
+
+
+def _pair_hessian(rng, vertex_ids, nv, scale=10.0):
+    """A PSD 'contact pair' Hessian coupling the given vertices, on all vertices' DOFs (CSC)."""
+    k = len(vertex_ids) * DIM
+    B = rng.standard_normal((2, k))
+    local = scale * B.T @ B
+    idx = (np.asarray(vertex_ids)[:, None] * DIM + np.arange(DIM)).ravel()
+    r, c = np.meshgrid(idx, idx, indexing="ij")
+    return sp.csc_matrix((local.ravel(), (r.ravel(), c.ravel())), shape=(nv * DIM, nv * DIM))
+
+
+def _reference(asm, blocks, diag, C, dmap):
+    H = asm.assemble([blocks], [1.0], diag)
+    return (H + restrict_collision_hessian(C, dmap.global_to_free, dmap.num_free)).toarray()
+
+
+def test_grown_pattern_gives_the_exact_matrix_and_keeps_arrays_while_unchanged():
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0)  # never fold: always exact
+    data = asm.assemble_data([blocks], [1.0], diag)
+    C = _pair_hessian(rng, [2, 15, 16, 17], 24) + _pair_hessian(rng, [0, 20, 21, 22], 24)  # 0 is pinned
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.growths == 1
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+    # the same couplings again: same pattern arrays, no growth
+    M2 = pattern.assemble(data, 2 * C, dmap.global_to_free)
+    assert np.array_equal(M2.indices, M.indices) and np.array_equal(M2.indptr, M.indptr) and pattern.growths == 1
+    assert np.allclose(M2.toarray(), _reference(asm, blocks, diag, 2 * C, dmap))
+    # no contact at all: still the grown pattern (zeros there), values equal the elastic part
+    M3 = pattern.assemble(data)
+    assert np.array_equal(M3.indices, M.indices)
+    assert np.allclose(M3.toarray(), asm.assemble([blocks], [1.0], diag).toarray())
+
+
+def test_csr_is_canonical_for_the_solver():
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0)
+    M = pattern.assemble(asm.assemble_data([blocks], [1.0], diag), _pair_hessian(rng, [3, 12, 13, 14], 24),
+                         dmap.global_to_free)
+    S = M.copy()
+    S.sort_indices()
+    assert np.array_equal(S.indices, M.indices)
+    assert abs(M - M.T).max() <= 1e-12 * abs(M).max()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_folded_couplings_give_a_positive_definite_majorant(seed):
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    rng = np.random.default_rng(seed)
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    C = _pair_hessian(rng, [2, 15, 16, 17], 24, scale=1e3)
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.folds == 1 and pattern.growths == 0
+    assert np.array_equal(M.indices, asm.layout.indices)  # pattern unchanged
+    exact = _reference(asm, blocks, diag, C, dmap)
+    gap = M.toarray() - exact
+    assert np.linalg.eigvalsh(gap).min() > -1e-9 * np.abs(exact).max()  # M ⪰ exact Hessian
+    assert np.linalg.eigvalsh(M.toarray()).min() > 0
+    # only the blocks of vertices in the missing couplings change
+    touched = np.zeros(dmap.num_free, dtype=bool)
+    for v in (2, 15, 16, 17):
+        touched[dmap.global_to_free[v * DIM: v * DIM + DIM]] = True
+    assert np.allclose(gap[~touched][:, ~touched], 0)
+
+
+def test_too_many_missing_couplings_grow_the_pattern_instead_of_folding():
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=4)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    C = _pair_hessian(rng, [2, 15, 16, 17], 24)  # 3 far pairs → 6 missing vertex-pair blocks > 4
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.growths == 1 and pattern.folds == 0
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def test_stale_couplings_are_dropped_but_live_ones_kept():
+    rng, dmap, asm, blocks, diag = _chain_problem(nv=40, pinned=(0,))
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0, stale_factor=2.0)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    many = sum((_pair_hessian(rng, [v, v + 20], 40) for v in range(1, 15)), sp.csc_matrix((120, 120)))
+    pattern.assemble(data, many, dmap.global_to_free)
+    grown = pattern.layout.keys.size
+    # one old coupling still live plus one new one: the 13 stale ones are dropped, the live one kept
+    C = _pair_hessian(rng, [1, 21], 40) + _pair_hessian(rng, [3, 30], 40)
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.growths == 2 and pattern.layout.keys.size < grown
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
