@@ -87,7 +87,7 @@ class StepSolver:
         g = s.inertia.gradient(x, x_prev)
         blocks = []
         for body in s.bodies:
-            _, ge, he = body.elastic.value_gradient_hessian(x, project=True)
+            _, ge, he = body.elastic.value_gradient_hessian(x, project=True, reuse_buffer=True)
             g += s.h * ge
             blocks.append(he)
         weights, diag = [s.h] * len(blocks), s.inertia.hessian_diagonal()[s.dof_map.free_dofs]

@@ -333,3 +333,18 @@ def test_kernel_matches_numpy_reference(model: str, d: int) -> None:
             ref = np.zeros(E.num_vertices * d)
             np.add.at(ref, E.element_dofs().ravel(), gr.ravel())
             np.testing.assert_allclose(gg, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("d", DIMS)
+def test_reused_hessian_buffer_gives_the_same_blocks(d: int) -> None:
+    """``reuse_buffer`` writes into one kept array: same values as a fresh array, same object next call."""
+    X, T = box_mesh(d)
+    E = ElasticEnergy("neo_hookean", X, T, 1e4, 0.4)
+    rng = np.random.default_rng(7)
+    x1, x2 = deform(X, T, "perturb", rng), deform(X, T, "stretch", rng)
+    _, _, H1 = E.value_gradient_hessian(x1, reuse_buffer=True)
+    H1_values = H1.copy()
+    _, _, H2 = E.value_gradient_hessian(x2, reuse_buffer=True)
+    assert H2 is H1
+    np.testing.assert_array_equal(H2, E.element_hessians(x2))
+    np.testing.assert_array_equal(H1_values, E.element_hessians(x1))

@@ -112,3 +112,18 @@ def test_stale_couplings_are_dropped_but_live_ones_kept():
     M = pattern.assemble(data, C, dmap.global_to_free)
     assert pattern.growths == 2 and pattern.layout.keys.size < grown
     assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def test_sparse_contact_blocks_still_end_up_in_the_pattern():
+    """A contact block whose first entry is structurally absent is found by the every-entry fallback."""
+    rng, dmap, asm, blocks, diag = _chain_problem(nv=40, pinned=(0,))
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    many = sum((_pair_hessian(rng, [v, v + 20], 40) for v in range(1, 15)), sp.csc_matrix((120, 120)))
+    pattern.assemble(data, many, dmap.global_to_free)
+    C = (_pair_hessian(rng, [1, 21], 40) + _pair_hessian(rng, [3, 30], 40)).tolil()
+    C[3, 63] = C[63, 3] = 0.0  # (vertex 1, x) × (vertex 21, x): first entry of a live block removed
+    C = C.tocsc()
+    C.eliminate_zeros()
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
