@@ -123,6 +123,22 @@ class FixedPatternAssembler:
         self._element_scatter = [scatter[offsets[i]: offsets[i + 1]] for i in range(len(element_dofs))]
         self._diag_scatter = scatter[offsets[-1]:]
 
+    def start_data(self, diagonal: np.ndarray) -> np.ndarray:
+        """A value array holding diag(``diagonal``); add element blocks with :meth:`add_element_blocks`
+        and pass it to :meth:`finish_data`."""
+        data = np.zeros(self.nnz + 1)  # last slot: entries that touch pinned DOFs
+        _scatter_add(data, self._diag_scatter, np.ascontiguousarray(diagonal, dtype=float), 1.0)
+        return data
+
+    def add_element_blocks(self, data: np.ndarray, energy_index: int, first: int, blocks: np.ndarray, weight: float) -> None:
+        """Scatter ``blocks`` (g, k, k) of elements first … first+g−1 of energy ``energy_index``."""
+        kk = blocks.shape[1] * blocks.shape[2]
+        idx = self._element_scatter[energy_index][first * kk: (first + blocks.shape[0]) * kk]
+        _scatter_add(data, idx, np.ascontiguousarray(blocks, dtype=float).reshape(-1), float(weight))
+
+    def finish_data(self, data: np.ndarray) -> np.ndarray:
+        return data[: self.nnz]
+
     def assemble_data(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> np.ndarray:
         """Values of Σ_i weights[i]·blocks[i] + diag(``diagonal``) on the fixed pattern."""
         data = np.zeros(self.nnz + 1)  # last slot: entries that touch pinned DOFs

@@ -68,6 +68,8 @@ class GrowingBlockPattern:
         self.stale_factor = float(stale_factor)
         self.fold_limit = max(64, base.nfv // 16) if fold_limit is None else int(fold_limit)
         self.folds = 0
+        self.last_folded = False  # whether the last assembled matrix is a folded majorant
+        self._last: tuple | None = None
         self.extra = np.zeros(0, dtype=np.int64)  # vertex-pair keys outside the base pattern
         self.layout = base
         self._base_to_full: np.ndarray | None = None
@@ -142,6 +144,8 @@ class GrowingBlockPattern:
         """CSR of the base values plus the symmetric ``contact`` matrix, whose DOF j is free DOF
         ``dof_map[j]`` (< 0: pinned, dropped; increasing on the others). Matrices assembled on one
         pattern have equal ``indptr``/``indices``."""
+        self.last_folded = False
+        self._last = (base_data, contact, dof_map)
         data = self._full_data(base_data)
         if contact is not None and contact.nnz:
             C = contact.tocsc()
@@ -156,7 +160,9 @@ class GrowingBlockPattern:
                 vals = np.empty(missing)
                 data = self._full_data(base_data)
                 _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, rows, cols, vals)
-                if not self._fold(data, rows, cols, vals):
+                if self._fold(data, rows, cols, vals):
+                    self.last_folded = True
+                else:
                     for every_entry in (False, True):
                         self._grow(C, dof_map, every_entry)
                         L = self.layout
@@ -168,3 +174,16 @@ class GrowingBlockPattern:
         L = self.layout
         n = L.nfv * L.d
         return sp.csr_matrix((data, L.indices, L.indptr), shape=(n, n))
+
+    def exact_matrix(self) -> sp.csr_matrix:
+        """The last matrix without folding: grows the pattern by the couplings that were folded.
+
+        The Newton loop asks for it before it declares convergence on a folded matrix, so the stopping
+        test always sees the true Newton direction (a folded one is shorter and would stop early)."""
+        base_data, contact, dof_map = self._last
+        saved = self.fold_limit
+        self.fold_limit = -1
+        try:
+            return self.assemble(base_data, contact, dof_map)
+        finally:
+            self.fold_limit = saved

@@ -127,3 +127,15 @@ def test_sparse_contact_blocks_still_end_up_in_the_pattern():
     C.eliminate_zeros()
     M = pattern.assemble(data, C, dmap.global_to_free)
     assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def test_exact_matrix_after_a_fold_equals_the_unfolded_matrix():
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    C = _pair_hessian(rng, [2, 15, 16, 17], 24, scale=1e3)
+    pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.last_folded
+    M = pattern.exact_matrix()
+    assert not pattern.last_folded and pattern.growths == 1 and pattern.fold_limit == 64
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
