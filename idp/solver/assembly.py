@@ -141,11 +141,10 @@ class FixedPatternAssembler:
 
     def assemble_data(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> np.ndarray:
         """Values of Σ_i weights[i]·blocks[i] + diag(``diagonal``) on the fixed pattern."""
-        data = np.zeros(self.nnz + 1)  # last slot: entries that touch pinned DOFs
-        _scatter_add(data, self._diag_scatter, np.ascontiguousarray(diagonal, dtype=float), 1.0)
-        for blocks, w, idx in zip(element_blocks, weights, self._element_scatter):
-            _scatter_add(data, idx, np.ascontiguousarray(blocks, dtype=float).reshape(-1), float(w))
-        return data[: self.nnz]
+        data = self.start_data(diagonal)
+        for i, (blocks, w) in enumerate(zip(element_blocks, weights)):
+            self.add_element_blocks(data, i, 0, blocks, w)
+        return self.finish_data(data)
 
     def assemble(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> sp.csr_matrix:
         """Σ_i weights[i]·blocks[i] scattered into the pattern, plus ``diagonal`` (free DOFs)."""
