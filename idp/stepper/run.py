@@ -144,6 +144,8 @@ def run_simulation(
                 "ccd_alphas": res.ccd_alphas,
                 "inversion_alphas": res.inversion_alphas,
                 "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
+                "pcg_iterations": res.pcg_iterations,
+                "exact_refactorizations": res.exact_refactorizations,
                 "contacts": res.num_contacts,
                 "kappa": res.kappa,
                 "energy": res.energy,
