@@ -46,3 +46,32 @@ def test_pcg_reports_a_hit_cap_and_an_indefinite_matrix():
     assert not ok and its == 3
     x, its, ok = pcg_from_majorant(lambda v: -v, ident, b, b, 1e-12, 10)
     assert not ok
+
+
+@pytest.mark.parametrize("backend", ["scipy", "auto"])
+@pytest.mark.parametrize("cap", [100, 0])
+def test_newton_exact_direction_after_a_fold(backend, cap):
+    """StepSolver._exact_direction returns −H⁻¹g of the unfolded matrix: by CG from the folded factor, or
+    (cap 0) by growing the pattern and factorising the exact matrix."""
+    from types import SimpleNamespace
+
+    from idp.solver.linear import make_linear_solver
+    from idp.solver.newton import NewtonResult, NewtonSettings, StepSolver
+
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
+    C = _pair_hessian(rng, [2, 15, 16, 17], 24, scale=1e3)
+    M = pattern.assemble(asm.assemble_data([blocks], [1.0], diag), C, dmap.global_to_free)
+    assert pattern.last_folded
+    solver = StepSolver(SimpleNamespace(contact_pattern=pattern), NewtonSettings(pcg_rtol=1e-10, pcg_max_iterations=cap),
+                        make_linear_solver(backend))
+    res = NewtonResult()
+    g = rng.standard_normal(M.shape[0])
+    p_folded = solver._direction(M, g, res)
+    p = solver._exact_direction(M, g, p_folded, res)
+    exact = -np.linalg.solve(_reference(asm, blocks, diag, C, dmap), g)
+    assert np.allclose(p, exact, rtol=1e-6, atol=1e-8 * np.abs(exact).max())
+    if cap:
+        assert res.pcg_iterations > 0 and res.exact_refactorizations == 0 and pattern.growths == 0
+    else:
+        assert res.exact_refactorizations == 1 and pattern.growths == 1
