@@ -68,13 +68,22 @@ class GrowingBlockPattern:
         self.stale_factor = float(stale_factor)
         self.fold_limit = max(64, base.nfv // 16) if fold_limit is None else int(fold_limit)
         self.folds = 0
-        self.last_folded = False  # whether the last assembled matrix is a folded majorant
         self.fold_correction: sp.csr_matrix | None = None  # exact − folded matrix after a fold
-        self._folded: tuple | None = None  # what exact_matrix() needs to undo the last fold
+        self._folded: tuple | None = None  # (folded values, folded vertex-pair keys) for exact_matrix()
         self.extra = np.zeros(0, dtype=np.int64)  # vertex-pair keys outside the base pattern
         self.layout = base
         self._base_to_full: np.ndarray | None = None
         self.growths = 0
+
+    @property
+    def last_folded(self) -> bool:
+        """Whether the last assembled matrix is a folded majorant (``fold_correction`` holds exact − it)."""
+        return self.fold_correction is not None
+
+    def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
+        L = self.layout
+        n = L.nfv * L.d
+        return sp.csr_matrix((data, L.indices, L.indptr), shape=(n, n))
 
     def _vertex_keys(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         d, nfv = self.base.d, self.base.nfv
@@ -132,7 +141,7 @@ class GrowingBlockPattern:
         self.fold_correction = sp.csr_matrix(
             (np.concatenate([vals, -sig]), (np.concatenate([rows, drows]), np.concatenate([cols, drows]))),
             shape=(n, n))
-        self._folded = (data, keys, rows, cols, vals, drows, sig)
+        self._folded = (data, keys)
         self.folds += 1
         return True
 
@@ -152,7 +161,6 @@ class GrowingBlockPattern:
         """CSR of the base values plus the symmetric ``contact`` matrix, whose DOF j is free DOF
         ``dof_map[j]`` (< 0: pinned, dropped; increasing on the others). Matrices assembled on one
         pattern have equal ``indptr``/``indices``."""
-        self.last_folded = False
         self.fold_correction = None
         self._folded = None
         data = self._full_data(base_data)
@@ -169,9 +177,7 @@ class GrowingBlockPattern:
                 vals = np.empty(missing)
                 data = self._full_data(base_data)
                 _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, rows, cols, vals)
-                if self._fold(data, rows, cols, vals):
-                    self.last_folded = True
-                else:
+                if not self._fold(data, rows, cols, vals):
                     for every_entry in (False, True):
                         self._grow(C, dof_map, every_entry)
                         L = self.layout
@@ -180,9 +186,7 @@ class GrowingBlockPattern:
                             break
                     else:
                         raise AssertionError("contact entries missing from the grown pattern")
-        L = self.layout
-        n = L.nfv * L.d
-        return sp.csr_matrix((data, L.indices, L.indptr), shape=(n, n))
+        return self._matrix(data)
 
     def exact_matrix(self) -> sp.csr_matrix:
         """The last (folded) matrix without folding, on the pattern grown by the folded couplings.
@@ -191,20 +195,17 @@ class GrowingBlockPattern:
         bunnyx30_13K it is ≈ 50–90 MB, alive during the factorisation otherwise)."""
         if self._folded is None:
             raise RuntimeError("exact_matrix() needs a folded matrix from the last assemble()")
-        data, keys, rows, cols, vals, drows, sig = self._folded
+        data, keys = self._folded
+        K = self.fold_correction.tocoo()
         old = self.layout
         self._set_extra(np.union1d(self.extra, self._outside_base(keys)))
         exact = np.zeros(self.layout.nnz)
         exact[_embedding(old, self.layout)] = data
-        pos, found = self.layout.entry_positions(drows, drows)
-        np.subtract.at(exact, pos, sig)
-        pos, found = self.layout.entry_positions(rows, cols)
+        pos, found = self.layout.entry_positions(K.row.astype(np.int64), K.col.astype(np.int64))
         assert found.all(), "folded couplings are in the grown pattern"
-        np.add.at(exact, pos, vals)
-        self.last_folded, self.fold_correction, self._folded = False, None, None
-        L = self.layout
-        n = L.nfv * L.d
-        return sp.csr_matrix((exact, L.indices, L.indptr), shape=(n, n))
+        np.add.at(exact, pos, K.data)
+        self.fold_correction, self._folded = None, None
+        return self._matrix(exact)
 
 
 def _embedding(small: BlockLayout, large: BlockLayout) -> np.ndarray:
