@@ -1,0 +1,292 @@
+"""The numba surface broad phase: exact agreement with a brute-force box test, completeness
+against ipctk's collision set, and the exclusions (shared vertices, all-static pairs)."""
+
+import ipctk
+import numba
+import numpy as np
+import pytest
+
+from idp.contact._broad_phase import surface_candidates
+from idp.mesh.generate import box_surface, tet_ball
+from idp.mesh.surface import boundary_faces
+
+
+# ----------------------------------------------------------------------------- scenes
+
+
+def _ball_surface(radius, center, resolution):
+    vol = tet_ball(radius, center, resolution)
+    faces = boundary_faces(vol.elements)
+    used = np.unique(faces)
+    remap = np.full(vol.num_vertices, -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return vol.vertices[used], remap[faces]
+
+
+def _join(parts, num_dynamic_parts):
+    """Concatenate (vertices, faces) parts; the first num_dynamic_parts are dynamic (their vertices first)."""
+    verts, faces, off = [], [], 0
+    for v, f in parts:
+        verts.append(v)
+        faces.append(f + off)
+        off += len(v)
+    V = np.vstack(verts).astype(np.float64)
+    F = np.vstack(faces).astype(np.int32)
+    nd = sum(len(v) for v, _ in parts[:num_dynamic_parts])
+    return V, ipctk.edges(F).astype(np.int32), F, nd
+
+
+def two_boxes(gap=1e-3, jitter=1e-4, seed=0):
+    """Two dynamic boxes stacked along z, a gap below dhat between them."""
+    a = box_surface((0, 0, 0), (1, 1, 1), 3)
+    b = box_surface((0.3, 0.2, 1 + gap), (1.3, 1.2, 2 + gap), 3)
+    V, E, F, nd = _join([(a.vertices, a.faces), (b.vertices, b.faces)], 2)
+    V += jitter * np.random.default_rng(seed).uniform(-1, 1, V.shape)
+    return V, E, F, nd
+
+
+def ball_in_box(radius=0.985, seed=1):
+    """A dynamic ball surface almost touching the walls of a closed static box (coarser triangles)."""
+    bv, bf = _ball_surface(radius, (0.0, 0.011, -0.002), 3)
+    box = box_surface((-1, -1, -1), (1, 1, 1), 3)
+    V, E, F, nd = _join([(bv, bf), (box.vertices, box.faces)], 1)
+    V[:nd] += 2e-3 * np.random.default_rng(seed).uniform(-1, 1, (nd, 3))
+    return V, E, F, nd
+
+
+def rounded_cube_in_box(seed=4):
+    """A dynamic rounded cube (superellipsoid) whose flat sides lie 2.5e-3 from a static box's walls."""
+    bv, bf = _ball_surface(1.0, (0, 0, 0), 3)
+    u = bv / np.linalg.norm(bv, axis=1, keepdims=True)
+    s = np.sign(u) * np.abs(u) ** 0.25  # |x|^8 + |y|^8 + |z|^8 = 1 after the normalisation below
+    s /= ((s**8).sum(axis=1, keepdims=True)) ** 0.125
+    s = s * (1 - 2.5e-3) + 1e-3 * np.random.default_rng(seed).uniform(-1, 1, s.shape)
+    box = box_surface((-1, -1, -1), (1, 1, 1), 3)
+    return _join([(s, bf), (box.vertices, box.faces)], 1)
+
+
+def ball_in_big_triangles(seed=2):
+    """A small dynamic ball inside a static cage of 12 triangles much larger than the ball's."""
+    bv, bf = _ball_surface(0.3, (0.6, 0.0, 0.0), 3)
+    cage = box_surface((-0.95, -1, -1), (0.903, 1, 1), 1)
+    V, E, F, nd = _join([(bv, bf), (cage.vertices, cage.faces)], 1)
+    V[:nd] += 1e-3 * np.random.default_rng(seed).uniform(-1, 1, (nd, 3))
+    return V, E, F, nd
+
+
+def triangle_soup(seed=3, nv=70, nf=60, nd=45):
+    """Random triangles of all sizes and orientations; edges with one static and one dynamic vertex."""
+    rng = np.random.default_rng(seed)
+    V = rng.uniform(0, 1, (nv, 3))
+    F = np.array([rng.choice(nv, 3, replace=False) for _ in range(nf)], dtype=np.int32)
+    return V, ipctk.edges(F).astype(np.int32), F, nd
+
+
+SCENES = {
+    "two_boxes": two_boxes,
+    "ball_in_box": ball_in_box,
+    "ball_in_big_triangles": ball_in_big_triangles,
+    "rounded_cube_in_box": rounded_cube_in_box,
+    "triangle_soup": triangle_soup,
+}
+
+
+# ----------------------------------------------------------------------------- reference
+
+
+def _boxes(V0, V1, prims):
+    lo, hi = V0[prims].min(axis=1), V0[prims].max(axis=1)
+    if V1 is not None:
+        lo = np.minimum(lo, V1[prims].min(axis=1))
+        hi = np.maximum(hi, V1[prims].max(axis=1))
+    return lo, hi
+
+
+def brute_force(V0, V1, E, F, infl, nd):
+    """Every pair passing lo_a <= hi_b + infl and lo_b <= hi_a + infl on all axes, minus the exclusions."""
+    vlo, vhi = _boxes(V0, V1, np.arange(len(V0))[:, None])
+    elo, ehi = _boxes(V0, V1, E)
+    flo, fhi = _boxes(V0, V1, F)
+    ok = ((flo[:, None] <= vhi[None] + infl) & (vlo[None] <= fhi[:, None] + infl)).all(axis=-1)
+    f, v = np.nonzero(ok)
+    keep = (F[f] != v[:, None]).all(axis=1) & ((F[f].min(axis=1) < nd) | (v < nd))
+    fv = set(zip(f[keep].tolist(), v[keep].tolist()))
+    ok = ((elo[:, None] <= ehi[None] + infl) & (elo[None] <= ehi[:, None] + infl)).all(axis=-1)
+    a, b = np.nonzero(np.triu(ok, 1))
+    share = (E[a][:, :, None] == E[b][:, None, :]).any(axis=(1, 2))
+    keep = ~share & ((E[a].min(axis=1) < nd) | (E[b].min(axis=1) < nd))
+    ee = set(zip(a[keep].tolist(), b[keep].tolist()))
+    return fv, ee
+
+
+def _as_sets(fv, ee):
+    assert fv.dtype == np.int32 and ee.dtype == np.int32
+    assert fv.ndim == 2 and fv.shape[1] == 2 and ee.ndim == 2 and ee.shape[1] == 2
+    assert np.all(ee[:, 0] < ee[:, 1])
+    sfv, see = set(map(tuple, fv.tolist())), set(map(tuple, ee.tolist()))
+    assert len(sfv) == len(fv) and len(see) == len(ee), "duplicate pairs"
+    return sfv, see
+
+
+# ----------------------------------------------------------------------------- tests
+
+
+@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+@pytest.mark.parametrize("name", list(SCENES))
+def test_matches_brute_force(name, sweep):
+    V, E, F, nd = SCENES[name]()
+    rng = np.random.default_rng(7)
+    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    for infl in (0.0, 1e-3, 2e-2):
+        fv, ee = surface_candidates(V, V1, E, F, infl, nd)
+        got = _as_sets(fv, ee)
+        want = brute_force(V, V1, E, F, infl, nd)
+        assert got[0] == want[0], (name, infl, "fv")
+        assert got[1] == want[1], (name, infl, "ee")
+    assert len(want[0]) > 0 and len(want[1]) > 0
+
+
+def test_large_inflation_overflows_the_first_pass():
+    """Far more pairs than cell entries: the exact second pass must still give the brute-force set."""
+    V, E, F, nd = triangle_soup(seed=4)
+    fv, ee = surface_candidates(V, None, E, F, 0.5, nd)
+    got = _as_sets(fv, ee)
+    want = brute_force(V, None, E, F, 0.5, nd)
+    assert got == want and len(ee) > len(E) * 5
+
+
+def test_same_pairs_on_one_thread_and_deterministic():
+    V, E, F, nd = ball_in_box()
+    a = surface_candidates(V, None, E, F, 1e-2, nd)
+    b = surface_candidates(V, None, E, F, 1e-2, nd)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        c = surface_candidates(V, None, E, F, 1e-2, nd)
+    finally:
+        numba.set_num_threads(old)
+    assert _as_sets(*a) == _as_sets(*c)
+
+
+def _covered(coll, fv, ee, E, F):
+    """Every ipctk collision maps to a candidate: FV -> (f, v), EE -> (a, b); EV and VV -> some fv
+    or ee candidate containing all of their vertices."""
+    fv_set = set(map(tuple, fv.tolist()))
+    ee_set = set(map(tuple, ee.tolist()))
+    for c in coll.fv_collisions:
+        assert (c.face_id, c.vertex_id) in fv_set
+    for c in coll.ee_collisions:
+        assert (min(c.edge0_id, c.edge1_id), max(c.edge0_id, c.edge1_id)) in ee_set
+    # vertex sets of all candidates, for the EV / VV checks
+    cand = [set(F[f].tolist()) | {v} for f, v in fv_set] + [set(E[a].tolist()) | set(E[b].tolist()) for a, b in ee_set]
+    by_vertex = {}
+    for s in cand:
+        for v in s:
+            by_vertex.setdefault(v, []).append(s)
+    for c in list(coll.ev_collisions) + list(coll.vv_collisions):
+        ids = {int(i) for i in c.vertex_ids(E, F) if i >= 0}
+        assert any(ids <= s for s in by_vertex.get(next(iter(ids)), [])), ids
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_complete_against_ipctk_collisions(name):
+    V, E, F, nd = SCENES[name]()
+    dhat = 5e-3
+    mesh = ipctk.CollisionMesh(V, E, F)
+    mesh.can_collide = ipctk.make_static_obstacle_filter(nd)
+    coll = ipctk.NormalCollisions()
+    coll.build(mesh, V, dhat)
+    assert len(coll) > 0
+    fv, ee = surface_candidates(V, None, E, F, dhat, nd)
+    _covered(coll, fv, ee, E, F)
+
+
+@pytest.mark.parametrize("name", ["two_boxes", "ball_in_big_triangles"])
+def test_sweep_covers_ipctk_candidates(name):
+    """ipctk's swept-box candidates, each box inflated by r, lie within ours with inflation 2 r
+    (plus a hair: ipctk pads its boxes by a little more than r)."""
+    V0, E, F, nd = SCENES[name]()
+    rng = np.random.default_rng(5)
+    V1 = V0.copy()
+    V1[:nd] += 0.02 * rng.standard_normal((nd, 3))
+    r = 2e-3
+    mesh = ipctk.CollisionMesh(V0, E, F)
+    mesh.can_collide = ipctk.make_static_obstacle_filter(nd)
+    cand = ipctk.Candidates()
+    cand.build(mesh, V0, V1, r, ipctk.BruteForce())
+    fv, ee = surface_candidates(V0, V1, E, F, 2 * r * (1 + 1e-3), nd)
+    sfv, see = _as_sets(fv, ee)
+    assert len(cand.fv_candidates) > 0 and len(cand.ee_candidates) > 0
+    assert {(c.face_id, c.vertex_id) for c in cand.fv_candidates} <= sfv
+    assert {(min(c.edge0_id, c.edge1_id), max(c.edge0_id, c.edge1_id)) for c in cand.ee_candidates} <= see
+
+
+def test_accepts_int64_ids_and_non_contiguous_positions():
+    V, E, F, nd = ball_in_box()
+    want = _as_sets(*surface_candidates(V, None, E, F, 1e-2, nd))
+    got = _as_sets(*surface_candidates(np.asfortranarray(V), None, E.astype(np.int64), F.astype(np.int64), 1e-2, nd))
+    assert got == want
+
+
+def test_exclusions():
+    # three stacked parallel triangles A (z=0), B (z=0.06), C (z=0.12); inflation 0.07 joins A-B and
+    # B-C but not A-C. Within a triangle every pair passes the box test but shares a vertex.
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
+    V = np.vstack([tri, tri + [0, 0, 0.06], tri + [0, 0, 0.12]])
+    F = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]], dtype=np.int32)
+    E = ipctk.edges(F).astype(np.int32)
+    tri_of_edge = E[:, 0] // 3
+
+    fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=9)
+    sfv, see = _as_sets(fv, ee)
+    near = {(0, 1), (1, 0), (1, 2), (2, 1)}
+    assert sfv == {(f, v) for f in range(3) for v in range(9) if (f, v // 3) in near}
+    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9)
+                   if (tri_of_edge[a], tri_of_edge[b]) in near}
+    assert (sfv, see) == brute_force(V, None, E, F, 0.07, 9)
+
+    # only A dynamic: the B-C pairs are all static and go, the A-B pairs stay
+    fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=3)
+    sfv, see = _as_sets(fv, ee)
+    assert sfv == {(0, v) for v in range(3, 6)} | {(1, v) for v in range(3)}
+    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9)
+                   if {tri_of_edge[a], tri_of_edge[b]} == {0, 1}}
+
+    # one dynamic vertex (0): faces B, C and vertices 1.. are static, face A is not
+    fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=1)
+    assert set(map(tuple, fv.tolist())) == {(0, v) for v in range(3, 6)} | {(1, 0)}
+    assert all(0 in E[a] or 0 in E[b] for a, b in ee.tolist()) and len(ee) > 0
+
+    fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=0)
+    assert fv.shape == (0, 2) and ee.shape == (0, 2)
+
+
+def test_all_static_pairs_are_skipped_in_a_scene():
+    V, E, F, nd = ball_in_box(radius=0.99)
+    fv, ee = surface_candidates(V, None, E, F, 2e-2, nd)
+    assert np.all((F[fv[:, 0]].min(axis=1) < nd) | (fv[:, 1] < nd))
+    assert np.all((E[ee[:, 0]].min(axis=1) < nd) | (E[ee[:, 1]].min(axis=1) < nd))
+    # the static box's own near pairs are not there, the ball-box ones are
+    static_face = F.min(axis=1) >= nd
+    assert np.any(static_face[fv[:, 0]]) and np.any(~static_face[fv[:, 0]])
+
+
+def test_bad_input():
+    V, E, F, nd = two_boxes()
+    with pytest.raises(ValueError):
+        surface_candidates(V[:, :2], None, E, F, 1e-3, nd)
+    with pytest.raises(ValueError):
+        surface_candidates(V, V[:-1], E, F, 1e-3, nd)
+    with pytest.raises(ValueError):
+        surface_candidates(V, None, E, F + len(V), 1e-3, nd)
+    with pytest.raises(ValueError):
+        surface_candidates(V, None, E - 1, F, 1e-3, nd)
+    with pytest.raises(ValueError):
+        surface_candidates(V, None, E, F[:, :2], 1e-3, nd)
+    with pytest.raises(ValueError):
+        surface_candidates(V, None, E, F, -1.0, nd)
+    bad = V.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError):
+        surface_candidates(bad, None, E, F, 1e-3, nd)
