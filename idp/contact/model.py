@@ -35,11 +35,14 @@ def make_ccd(name: str):
     raise ValueError(f"unknown CCD method {name!r}; choose 'additive' or 'tight_inclusion'")
 
 
+BARRIERS = ("compiled", "ipctk")
+
+
 @dataclass
 class ContactEvaluation:
     """Collision set at one configuration, with what the Newton loop needs from it."""
 
-    collisions: "ipctk.NormalCollisions"
+    collisions: "ipctk.NormalCollisions | CollisionSet"  # CollisionSet: idp.contact.compiled_barrier
     surface_positions: np.ndarray
     num_active: int
 
@@ -58,10 +61,16 @@ class ContactModel:
         broad_phase: str = "lbvh",
         kappa: float | None = None,
         adaptive_kappa: bool = True,
+        barrier: str = "compiled",
     ):
         """``surface``: boundary triangles (3D) or segments (2D) in global vertex ids; vertices with
         id >= ``num_dynamic_vertices`` are static obstacles (pairs of two static vertices are skipped).
-        ``kappa``: None for IPC's automatic initial stiffness, or a fixed initial value."""
+        ``kappa``: None for IPC's automatic initial stiffness, or a fixed initial value.
+        ``barrier``: ``compiled`` (collision set, barrier and Hessian blocks in arrays,
+        :mod:`idp.contact.compiled_barrier`; 3D only, 2D falls back) or ``ipctk`` (ipctk's
+        ``NormalCollisions`` and ``BarrierPotential``); the same energy either way."""
+        if barrier not in BARRIERS:
+            raise ValueError(f"unknown barrier implementation {barrier!r}; choose one of {BARRIERS}")
         self.dim = positions.shape[1]
         self.dhat = float(dhat)
         surface = np.asarray(surface, dtype=np.int32)
@@ -89,6 +98,17 @@ class ContactModel:
         self.kappa_max = 0.0 if kappa is None else 100.0 * float(kappa)
         self._potential_cache: tuple[float, object] | None = None
         self.bbox_diagonal = float(ipctk.world_bbox_diagonal_length(self.surface_positions(positions)))
+        self.compiled = barrier == "compiled" and self.dim == 3
+        self.num_dynamic_collision_vertices = n_dyn_cm
+        if self.compiled:
+            from idp.contact import compiled_barrier
+
+            self._cb = compiled_barrier
+            self._edges = np.ascontiguousarray(self.mesh.edges, dtype=np.int32)
+            self._faces = np.ascontiguousarray(self.mesh.faces, dtype=np.int32)
+            rest = np.asarray(self.mesh.rest_positions)
+            self._edge_rest_len2 = np.ascontiguousarray(
+                ((rest[self._edges[:, 1]] - rest[self._edges[:, 0]]) ** 2).sum(axis=1)) if len(self._edges) else np.zeros(0)
 
     # -- geometry -------------------------------------------------------------
     def broad_phase(self):
@@ -107,6 +127,10 @@ class ContactModel:
         """Active collision set at x. ``candidates`` from :meth:`sweep_candidates` (valid for any point of
         the swept segment) replaces the broad phase, so line-search trials skip it."""
         vs = self.surface_positions(x)
+        if self.compiled:
+            fv, ee = candidates if candidates is not None else self._candidates(vs, None)
+            cs = self._cb.build_collision_set(vs, self._edges, self._faces, fv, ee, self.dhat, self._edge_rest_len2)
+            return ContactEvaluation(cs, vs, len(cs))
         c = ipctk.NormalCollisions()
         if candidates is not None:
             c.build(candidates, self.mesh, vs, self.dhat, 0.0)
@@ -114,9 +138,16 @@ class ContactModel:
             c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
         return ContactEvaluation(c, vs, len(c))
 
+    def _candidates(self, v0: np.ndarray, v1: np.ndarray | None):
+        from idp.contact._broad_phase import surface_candidates
+
+        return surface_candidates(v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices)
+
     def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes
         within d̂ anywhere on the segment is in the set (used for CCD and for the line-search trials)."""
+        if self.compiled:
+            return self._candidates(self.surface_positions(x0), self.surface_positions(x1))
         cand = ipctk.Candidates()
         cand.build(self.mesh, self.surface_positions(x0), self.surface_positions(x1), self.dhat, self.broad_phase())
         return cand
@@ -130,12 +161,16 @@ class ContactModel:
     def value(self, ev: ContactEvaluation) -> float:
         if ev.num_active == 0 or self.kappa == 0.0:
             return 0.0
+        if self.compiled:
+            return self._cb.barrier_value(ev.collisions, ev.surface_positions, self.dhat, self.kappa)
         return float(self.potential()(ev.collisions, self.mesh, ev.surface_positions))
 
     def gradient(self, ev: ContactEvaluation, kappa: float | None = None) -> np.ndarray:
         """Gradient on collision-mesh DOFs (interleaved)."""
         if ev.num_active == 0:
             return np.zeros(ev.surface_positions.size)
+        if self.compiled:
+            return self._cb.barrier_gradient(ev.collisions, ev.surface_positions, self.dhat, self.kappa if kappa is None else kappa)
         return np.asarray(self.potential(kappa).gradient(ev.collisions, self.mesh, ev.surface_positions))
 
     def hessian(self, ev: ContactEvaluation, project: bool = True) -> sp.csc_matrix:
@@ -143,13 +178,25 @@ class ContactModel:
         n = ev.surface_positions.size
         if ev.num_active == 0 or self.kappa == 0.0:
             return sp.csc_matrix((n, n))
+        if self.compiled:
+            bv, blocks = self.hessian_blocks(ev, np.arange(ev.surface_positions.shape[0]), project)
+            rows, cols, vals = self._cb.blocks_to_coo(bv, blocks, self.dim)
+            return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
         method = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
         return self.potential().hessian(ev.collisions, self.mesh, ev.surface_positions, method)
+
+    def hessian_blocks(self, ev: ContactEvaluation, vertex_map: np.ndarray, project: bool = True):
+        """Compiled barrier only: per-collision Hessian blocks restricted to the vertices with
+        ``vertex_map`` ≥ 0 (collision-mesh vertex → output vertex id), each projected to PSD after the
+        restriction; see :func:`idp.contact.compiled_barrier.barrier_hessian_blocks`."""
+        return self._cb.barrier_hessian_blocks(ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project)
 
     def min_distance(self, ev: ContactEvaluation) -> float:
         """Smallest distance among active pairs (not squared); ``inf`` when no pair is within d̂."""
         if ev.num_active == 0:
             return float("inf")
+        if self.compiled:
+            return float(np.sqrt(max(self._cb.minimum_sqdist(ev.collisions), 0.0)))
         return float(np.sqrt(max(ev.collisions.compute_minimum_distance(self.mesh, ev.surface_positions), 0.0)))
 
     # -- stiffness ------------------------------------------------------------
@@ -188,7 +235,7 @@ class ContactModel:
         if self._ccd_name == "tight_inclusion" and current_min_distance < 1e-4 * self.dhat:
             ccd = self._fallback_ccd
             self.ccd_fallbacks += 1
-        if candidates is not None:
+        if candidates is not None and not self.compiled:
             return float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
         return float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
 

@@ -178,6 +178,7 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         contact = ContactModel(
             x, all_surface, num_dynamic, dhat, ccd=c.ccd, broad_phase=c.broad_phase,
             kappa=None if c.kappa == "auto" else float(c.kappa), adaptive_kappa=c.adaptive_kappa,
+            barrier=c.barrier,
         )
         ev = contact.evaluate(x)
         if ev.num_active and contact.min_distance(ev) <= 0.0:

@@ -159,6 +159,7 @@ class ContactConfig(_Model):
     adaptive_kappa: Bool = True
     ccd: Literal["additive", "tight_inclusion"] = "tight_inclusion"
     broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
+    barrier: Literal["compiled", "ipctk"] = "compiled"
     preserve_input_intersections: Bool = False
 
     @field_validator("kappa", mode="before")

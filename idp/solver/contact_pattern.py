@@ -54,6 +54,45 @@ def _scatter_csc(cptr, crow, cval, dof_map, indptr, indices, out, missing_rows, 
     return n_missing
 
 
+@numba.njit(cache=True)
+def _scatter_blocks(block_verts, blocks, keys, vptr, deg, nfv, d, out, missing):  # pragma: no cover
+    """out[...] += every d×d vertex-pair block of the per-collision ``blocks`` (leading block of the
+    collision's kept vertices ``block_verts``, −1 padded) at its place in the block layout. Pairs whose
+    block is absent are listed in ``missing`` rows [collision, a, b] (up to its length); returns their count."""
+    n_missing = 0
+    for c in range(block_verts.shape[0]):
+        for a in range(block_verts.shape[1]):
+            va = block_verts[c, a]
+            if va < 0:
+                break
+            lo, hi = vptr[va], vptr[va + 1]
+            stride = d * deg[va]
+            for b in range(block_verts.shape[1]):
+                vb = block_verts[c, b]
+                if vb < 0:
+                    break
+                key = va * nfv + vb
+                l, h = lo, hi
+                while l < h:
+                    mid = (l + h) // 2
+                    if keys[mid] < key:
+                        l = mid + 1
+                    else:
+                        h = mid
+                if l < hi and keys[l] == key:
+                    base = d * d * vptr[va] + d * (l - vptr[va])
+                    for r in range(d):
+                        for s in range(d):
+                            out[base + r * stride + s] += blocks[c, d * a + r, d * b + s]
+                else:
+                    if n_missing < missing.shape[0]:
+                        missing[n_missing, 0] = c
+                        missing[n_missing, 1] = a
+                        missing[n_missing, 2] = b
+                    n_missing += 1
+    return n_missing
+
+
 class GrowingBlockPattern:
     """Assembles elastic values (on the base layout) plus contact COO entries into a padded block pattern."""
 
@@ -108,7 +147,12 @@ class GrowingBlockPattern:
             first = C[::d, ::d].tocoo()
             rows, cols = dof_map[first.row * d], dof_map[first.col * d]
         keep = (rows >= 0) & (cols >= 0)
-        live = self._outside_base(self._vertex_keys(rows[keep], cols[keep]))
+        self._grow_keys(self._vertex_keys(rows[keep], cols[keep]))
+
+    def _grow_keys(self, vertex_keys: np.ndarray) -> None:
+        """Add the vertex-pair couplings ``vertex_keys`` (row·nfv + col) that the pattern lacks; drop stale
+        extra couplings when they outnumber the live ones."""
+        live = self._outside_base(vertex_keys)
         union = np.union1d(self.extra, live)
         self._set_extra(union if union.size <= self.stale_factor * max(live.size, 1) else live)
 
@@ -186,6 +230,44 @@ class GrowingBlockPattern:
                             break
                     else:
                         raise AssertionError("contact entries missing from the grown pattern")
+        return self._matrix(data)
+
+    def assemble_blocks(self, base_data: np.ndarray, block_verts: np.ndarray, blocks: np.ndarray) -> sp.csr_matrix:
+        """CSR of the base values plus per-collision vertex blocks (``block_verts`` (m, 4) free-vertex ids,
+        −1 padded; ``blocks`` (m, 12, 12), the leading d·n × d·n block of collision c belonging to its n
+        vertices), with the same fold / grow policy as :meth:`assemble`."""
+        self.fold_correction = None
+        self._folded = None
+        data = self._full_data(base_data)
+        if block_verts.shape[0] == 0:
+            return self._matrix(data)
+        d, nfv = self.base.d, self.base.nfv
+
+        def scatter(out, missing):
+            L = self.layout
+            return _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
+
+        missing = scatter(data, np.zeros((0, 3), np.int64))
+        if missing:
+            where = np.empty((missing, 3), np.int64)
+            data = self._full_data(base_data)
+            scatter(data, where)
+            c, a, b = where[:, 0], where[:, 1], where[:, 2]
+            va, vb = block_verts[c, a].astype(np.int64), block_verts[c, b].astype(np.int64)
+            r = np.arange(d)
+            rows = np.broadcast_to((va[:, None, None] * d + r[None, :, None]), (c.size, d, d)).ravel()
+            cols = np.broadcast_to((vb[:, None, None] * d + r[None, None, :]), (c.size, d, d)).ravel()
+            vals = blocks[c[:, None, None], (a * d)[:, None, None] + r[None, :, None],
+                          (b * d)[:, None, None] + r[None, None, :]].ravel()
+            if not self._fold(data, rows, cols, vals):
+                bv = block_verts.astype(np.int64)
+                pa = np.broadcast_to(bv[:, :, None], (bv.shape[0], 4, 4))
+                pb = np.broadcast_to(bv[:, None, :], (bv.shape[0], 4, 4))
+                live = (pa >= 0) & (pb >= 0)
+                self._grow_keys(pa[live] * nfv + pb[live])
+                data = self._full_data(base_data)
+                if scatter(data, np.zeros((0, 3), np.int64)):
+                    raise AssertionError("contact blocks missing from the grown pattern")
         return self._matrix(data)
 
     def exact_matrix(self) -> sp.csr_matrix:

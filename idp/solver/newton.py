@@ -113,6 +113,9 @@ class StepSolver:
             return g, H
         if not active:
             return g, s.contact_pattern.assemble(data)
+        if s.contact.compiled:
+            block_verts, blocks = s.contact.hessian_blocks(ev, s.collision_vertex_to_free)
+            return g, s.contact_pattern.assemble_blocks(data, block_verts, blocks)
         return g, s.contact_pattern.assemble(data, s.contact.hessian(ev), s.collision_dof_to_free)
 
     def _init_kappa(self, x, x_prev, ev):

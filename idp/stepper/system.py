@@ -63,6 +63,9 @@ class System:
             kept = self.collision_dof_to_free[self.collision_dof_to_free >= 0]
             if self.assembler.layout is not None and np.all(np.diff(kept) > 0):
                 self.contact_pattern = GrowingBlockPattern(self.assembler.layout)
+                # collision-mesh vertex → free vertex (whole vertices are free or pinned here), −1 if not free
+                first = self.collision_dof_to_free.reshape(-1, self.dim)[:, 0]
+                self.collision_vertex_to_free = np.where(first >= 0, first // self.dim, -1).astype(np.int64)
         dyn = self.masses[: self.num_dynamic_vertices]
         self.average_mass = float(dyn[dyn > 0].mean()) if np.any(dyn > 0) else 1.0
 

@@ -29,11 +29,12 @@ def fd_gradient(f, x, eps):
     return g
 
 
+@pytest.mark.parametrize("barrier", ["compiled", "ipctk"])
 @pytest.mark.parametrize("seed,gap,kappa", [(0, 0.02, 1.0), (1, 0.05, 10.0), (2, 0.01, 1e3)])
-def test_barrier_gradient_and_hessian_match_finite_differences(seed, gap, kappa):
+def test_barrier_gradient_and_hessian_match_finite_differences(seed, gap, kappa, barrier):
     rng = np.random.default_rng(seed)
     x, surf, n_dyn = two_boxes(gap, rng, jitter=1e-3)
-    cm = ContactModel(x, surf, n_dyn, dhat=0.1, kappa=kappa)
+    cm = ContactModel(x, surf, n_dyn, dhat=0.1, kappa=kappa, barrier=barrier)
     ev = cm.evaluate(x)
     assert ev.num_active > 10
     to_cm = cm.to_full

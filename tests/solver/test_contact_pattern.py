@@ -139,3 +139,44 @@ def test_exact_matrix_after_a_fold_equals_the_unfolded_matrix():
     M = pattern.exact_matrix()
     assert not pattern.last_folded and pattern.growths == 1 and pattern.fold_limit == 64
     assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def _collision_blocks(rng, groups, dmap, nv, scale=10.0):
+    """Per-collision blocks on free vertices (as the compiled barrier gives them) and the same Hessian as a
+    CSC on all vertices' DOFs (as ipctk gives it)."""
+    vfree = dmap.global_to_free[::DIM] >= 0
+    block_verts = np.full((len(groups), 4), -1, dtype=np.int32)
+    blocks = np.zeros((len(groups), 12, 12))
+    C = sp.csc_matrix((nv * DIM, nv * DIM))
+    for c, verts in enumerate(groups):
+        kept = [v for v in verts if vfree[v]]
+        k = len(kept) * DIM
+        B = rng.standard_normal((2, k))
+        local = scale * B.T @ B
+        block_verts[c, :len(kept)] = [dmap.global_to_free[v * DIM] // DIM for v in kept]
+        blocks[c, :k, :k] = local
+        idx = (np.asarray(kept)[:, None] * DIM + np.arange(DIM)).ravel()
+        r, cc = np.meshgrid(idx, idx, indexing="ij")
+        C = C + sp.csc_matrix((local.ravel(), (r.ravel(), cc.ravel())), shape=C.shape)
+    return block_verts, blocks, C
+
+
+@pytest.mark.parametrize("fold_limit", [0, 4, 64])
+def test_collision_blocks_assemble_like_the_contact_matrix(fold_limit):
+    """assemble_blocks (compiled barrier) and assemble (a CSC contact Hessian) give the same matrix,
+    whether the couplings fit, are folded or grow the pattern; and the same exact matrix after a fold."""
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    groups = [[2, 15, 16, 17], [0, 20, 21, 22], [5, 6], [9, 10, 11]]  # 0 is pinned
+    bv, cb, C = _collision_blocks(rng, groups, dmap, 24, scale=1e3)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    p_blocks = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+    p_csc = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+    Mb = p_blocks.assemble_blocks(data, bv, cb)
+    Mc = p_csc.assemble(data, C, dmap.global_to_free)
+    assert (p_blocks.folds, p_blocks.growths) == (p_csc.folds, p_csc.growths)
+    assert np.array_equal(Mb.indices, Mc.indices) and np.array_equal(Mb.indptr, Mc.indptr)
+    assert np.allclose(Mb.toarray(), Mc.toarray(), rtol=1e-12, atol=1e-9)
+    if p_blocks.last_folded:
+        assert np.allclose(p_blocks.exact_matrix().toarray(), _reference(asm, blocks, diag, C, dmap))
+    else:
+        assert np.allclose(Mb.toarray(), _reference(asm, blocks, diag, C, dmap))
