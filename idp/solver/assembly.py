@@ -37,6 +37,27 @@ def _scatter_vertex_blocks(out, base, stride, blocks, weight):  # pragma: no cov
                         out[p0 + i * st + j] += weight * blocks[e, a * d + i, b * d + j]
 
 
+@numba.njit(cache=True, parallel=True)
+def _scatter_vertex_blocks_split(out, base, stride, blocks, weight, bounds):  # pragma: no cover
+    """:func:`_scatter_vertex_blocks` by several threads without races: thread t adds only the blocks whose
+    position lies in [bounds[t], bounds[t+1]) (boundaries between block rows, so a block never straddles
+    two ranges); every thread reads all element blocks and writes its own rows."""
+    g, nv = base.shape[0], base.shape[1]
+    d = blocks.shape[1] // nv
+    for t in numba.prange(bounds.size - 1):
+        lo, hi = bounds[t], bounds[t + 1]
+        for e in range(g):
+            for a in range(nv):
+                for b in range(nv):
+                    p0 = base[e, a, b]
+                    if p0 < lo or p0 >= hi:
+                        continue
+                    st = stride[e, a, b]
+                    for i in range(d):
+                        for j in range(d):
+                            out[p0 + i * st + j] += weight * blocks[e, a * d + i, b * d + j]
+
+
 class FreeDofMap:
     """Maps global DOFs (vertex·d + coordinate) to the numbering of the free (unpinned) DOFs."""
 
@@ -106,6 +127,10 @@ class FixedPatternAssembler:
             base[valid], stride[valid] = block_positions(keys[valid])
             self._block_scatter.append((base, stride))
         self._element_scatter = None
+        # row ranges of the parallel scatter: one per numba thread, cut at block-row boundaries
+        threads = max(1, numba.get_num_threads())
+        cuts = np.linspace(0, nfv, threads + 1).astype(np.int64)
+        self._scatter_bounds = (d * d * vptr[cuts]).astype(np.int64)
         dbase, dstride = block_positions(diag_keys)
         self._diag_scatter = (dbase[:, None] + a[None, :] * dstride[:, None] + a[None, :]).ravel()
 
@@ -154,7 +179,11 @@ class FixedPatternAssembler:
         if self._block_scatter is not None:
             base, stride = self._block_scatter[energy_index]
             g = blocks.shape[0]
-            _scatter_vertex_blocks(data, base[first: first + g], stride[first: first + g], blocks, float(weight))
+            if self._scatter_bounds.size > 2:
+                _scatter_vertex_blocks_split(data, base[first: first + g], stride[first: first + g], blocks,
+                                             float(weight), self._scatter_bounds)
+            else:
+                _scatter_vertex_blocks(data, base[first: first + g], stride[first: first + g], blocks, float(weight))
             return
         kk = blocks.shape[1] * blocks.shape[2]
         idx = self._element_scatter[energy_index][first * kk: (first + blocks.shape[0]) * kk]

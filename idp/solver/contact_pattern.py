@@ -247,11 +247,14 @@ class GrowingBlockPattern:
             L = self.layout
             return _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
 
-        missing = scatter(data, np.zeros((0, 3), np.int64))
+        where = np.empty((16 * max(self.fold_limit, 64), 3), np.int64)  # room for the usual few missing pairs
+        missing = scatter(data, where)
         if missing:
-            where = np.empty((missing, 3), np.int64)
-            data = self._full_data(base_data)
-            scatter(data, where)
+            if missing > where.shape[0]:  # more than there was room for: list them all
+                where = np.empty((missing, 3), np.int64)
+                data = self._full_data(base_data)
+                scatter(data, where)
+            where = where[:missing]
             c, a, b = where[:, 0], where[:, 1], where[:, 2]
             va, vb = block_verts[c, a].astype(np.int64), block_verts[c, b].astype(np.int64)
             r = np.arange(d)

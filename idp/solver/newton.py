@@ -60,7 +60,12 @@ class NewtonResult:
     elastic_energy: float = 0.0
     barrier_energy: float = 0.0
     min_distance: float = float("inf")
-    timings: dict = field(default_factory=lambda: {"assembly": 0.0, "linear_solve": 0.0, "line_search_ccd": 0.0, "contact_build": 0.0, "check": 0.0})
+    # seconds: assembly (gradient, elastic + barrier Hessians, pattern), linear_solve (orderings,
+    # factorisations, solves, CG), ccd (continuous collision detection), line_search (inversion filter and
+    # trial energies), contact_build (broad phase and collision sets, also those of the line search),
+    # check (per-iterate certificates)
+    timings: dict = field(default_factory=lambda: {"assembly": 0.0, "linear_solve": 0.0, "ccd": 0.0, "line_search": 0.0,
+                                                   "contact_build": 0.0, "check": 0.0})
 
 
 class StepSolver:
@@ -138,21 +143,29 @@ class StepSolver:
         """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
         halved until the step energy does not increase (plain decrease, as the reference)."""
         s, cfg = self.system, self.settings
+        t = time.perf_counter()
         alpha_inv = 1.0
         for body in s.bodies:
             alpha_inv = min(alpha_inv, max_inversion_free_step(x, P, body.elastic.elements, cfg.inversion_eta))
+        res.timings["line_search"] += time.perf_counter() - t
         alpha = alpha_inv
         alpha_ccd = 1.0
         cand = None
         if s.contact is not None and alpha > 0:
             x_end = x + alpha * P
+            t = time.perf_counter()
             cand = s.contact.sweep_candidates(x, x_end)
+            t1 = time.perf_counter()
             alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev))
+            res.timings["contact_build"] += t1 - t
+            res.timings["ccd"] += time.perf_counter() - t1
             alpha *= alpha_ccd
         while alpha > cfg.min_alpha:
             xt = x + alpha * P
             evt = self._contact_eval(xt, res, cand) if ev is not None else None
+            t = time.perf_counter()
             et, elt, bt = self._energy(xt, x_prev, evt)
+            res.timings["line_search"] += time.perf_counter() - t
             if et <= energy:
                 return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
             alpha *= 0.5
@@ -236,13 +249,11 @@ class StepSolver:
             P = p.reshape(n, d)
 
             # feasible step: inversion filter, then CCD on the shortened step, then backtracking
-            t = time.perf_counter()
             accepted, alpha, alpha_inv, alpha_ccd, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
             res.inversion_alphas.append(alpha_inv)
             res.ccd_alphas.append(alpha_ccd)
             if accepted:
                 xt, evt, et, elt, bt = trial
-            res.timings["line_search_ccd"] += time.perf_counter() - t
             if not accepted:
                 res.alphas.append(0.0)
                 if converged:

@@ -180,3 +180,15 @@ def test_collision_blocks_assemble_like_the_contact_matrix(fold_limit):
         assert np.allclose(p_blocks.exact_matrix().toarray(), _reference(asm, blocks, diag, C, dmap))
     else:
         assert np.allclose(Mb.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def test_many_missing_collision_blocks_grow_the_pattern_exactly():
+    """More missing pairs than the first scatter has room for (the pass that lists them all)."""
+    rng, dmap, asm, blocks, diag = _chain_problem(nv=120, pinned=(0,))
+    groups = [list(rng.choice(np.arange(1, 120), 4, replace=False)) for _ in range(150)]  # ~2,000 missing pairs
+    bv, cb, C = _collision_blocks(rng, groups, dmap, 120)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0)
+    M = pattern.assemble_blocks(data, bv, cb)
+    assert pattern.growths == 1
+    assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
