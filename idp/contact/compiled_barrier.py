@@ -34,10 +34,8 @@ from numba import njit, prange
 from idp.contact._distance_kernels import (
     EE_KIND,
     EE_LOCAL,
-    LL,
     PL,
     PP,
-    PPLANE,
     PT_KIND,
     PT_LOCAL,
     barrier,
@@ -64,53 +62,148 @@ MOLLIFIER_FACTOR = 1e-3
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _classify_face_vertex(V, faces, fv, dhat2, ptype, sqd):  # pragma: no cover - compiled
-    """Closest-feature type and squared distance of every face–vertex candidate."""
-    for i in prange(fv.shape[0]):
-        f, v = fv[i, 0], fv[i, 1]
-        X = np.empty((4, 3))
-        X[0] = V[v]
-        X[1] = V[faces[f, 0]]
-        X[2] = V[faces[f, 1]]
-        X[3] = V[faces[f, 2]]
-        t = point_triangle_type(X[0], X[1], X[2], X[3])
-        k = 0
-        while k < 4 and PT_LOCAL[t, k] >= 0:
-            k += 1
-        S = np.empty((k, 3))
-        for a in range(k):
-            S[a] = X[PT_LOCAL[t, a]]
-        ptype[i] = t
-        sqd[i] = sq_distance(PT_KIND[t], S)
+@njit(cache=True, error_model="numpy")
+def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps):  # pragma: no cover
+    """Candidates i0..i1−1 (face–vertex first, then edge–edge): closest-feature type, squared distance,
+    and for edge pairs the mollifier threshold ε_x when ‖e_a × e_b‖² < ε_x (else 0)."""
+    X = np.empty((4, 3))
+    S = np.empty((4, 3))
+    nf = fv.shape[0]
+    for i in range(i0, i1):
+        if i < nf:
+            f, v = fv[i, 0], fv[i, 1]
+            X[0] = V[v]
+            X[1] = V[faces[f, 0]]
+            X[2] = V[faces[f, 1]]
+            X[3] = V[faces[f, 2]]
+            t = point_triangle_type(X[0], X[1], X[2], X[3])
+            k = 0
+            while k < 4 and PT_LOCAL[t, k] >= 0:
+                S[k] = X[PT_LOCAL[t, k]]
+                k += 1
+            ctype[i] = t
+            sqd[i] = sq_distance(PT_KIND[t], S[:k])
+            eps[i] = 0.0
+        else:
+            ea, eb = ee[i - nf, 0], ee[i - nf, 1]
+            X[0] = V[edges[ea, 0]]
+            X[1] = V[edges[ea, 1]]
+            X[2] = V[edges[eb, 0]]
+            X[3] = V[edges[eb, 1]]
+            t = edge_edge_type(X[0], X[1], X[2], X[3])
+            k = 0
+            while k < 4 and EE_LOCAL[t, k] >= 0:
+                S[k] = X[EE_LOCAL[t, k]]
+                k += 1
+            ctype[i] = t
+            sqd[i] = sq_distance(EE_KIND[t], S[:k])
+            threshold = MOLLIFIER_FACTOR * rest_len2[ea] * rest_len2[eb]
+            ux, uy, uz = X[1, 0] - X[0, 0], X[1, 1] - X[0, 1], X[1, 2] - X[0, 2]
+            wx, wy, wz = X[3, 0] - X[2, 0], X[3, 1] - X[2, 1], X[3, 2] - X[2, 2]
+            cx = uy * wz - uz * wy
+            cy = uz * wx - ux * wz
+            cz = ux * wy - uy * wx
+            eps[i] = threshold if cx * cx + cy * cy + cz * cz < threshold else 0.0
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _classify_edge_edge(V, edges, ee, rest_len2, dhat2, etype, sqd, eps, cross2):  # pragma: no cover
-    """Closest-feature type, squared distance, mollifier threshold and ‖e_a × e_b‖² of every edge pair."""
-    for i in prange(ee.shape[0]):
-        a, b = ee[i, 0], ee[i, 1]
-        X = np.empty((4, 3))
-        X[0] = V[edges[a, 0]]
-        X[1] = V[edges[a, 1]]
-        X[2] = V[edges[b, 0]]
-        X[3] = V[edges[b, 1]]
-        t = edge_edge_type(X[0], X[1], X[2], X[3])
-        k = 0
-        while k < 4 and EE_LOCAL[t, k] >= 0:
-            k += 1
-        S = np.empty((k, 3))
-        for j in range(k):
-            S[j] = X[EE_LOCAL[t, j]]
-        etype[i] = t
-        sqd[i] = sq_distance(EE_KIND[t], S)
-        eps[i] = MOLLIFIER_FACTOR * rest_len2[a] * rest_len2[b]
-        ua = X[1] - X[0]
-        ub = X[3] - X[2]
-        cx = ua[1] * ub[2] - ua[2] * ub[1]
-        cy = ua[2] * ub[0] - ua[0] * ub[2]
-        cz = ua[0] * ub[1] - ua[1] * ub[0]
-        cross2[i] = cx * cx + cy * cy + cz * cz
+def _classify(V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps):  # pragma: no cover - compiled
+    n = fv.shape[0] + ee.shape[0]
+    for ch in prange((n + 255) // 256):
+        _classify_range(ch * 256, min(n, (ch + 1) * 256), V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
+
+
+@njit(cache=True, error_model="numpy")
+def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no cover - compiled
+    """The unique active collisions from classified candidates (see the module docstring): point–plane,
+    line–line and mollified edge pairs as they are; EV / VV pairs merged, their weight the count."""
+    nf = fv.shape[0]
+    n = nf + ee.shape[0]
+    m = 0
+    for i in range(n):
+        if sqd[i] < dhat2:
+            m += 1
+    verts = np.full((m, 4), -1, np.int32)
+    kind = np.empty(m, np.int8)
+    local = np.full((m, 4), -1, np.int8)
+    eps_out = np.zeros(m)
+    dist = np.empty(m)
+    key = np.full(m, -1, np.int64)  # EV / VV only: (kind, point, sorted others)
+    X4 = np.empty(4, np.int64)
+    c = 0
+    for i in range(n):
+        if sqd[i] >= dhat2:
+            continue
+        t = ctype[i]
+        if i < nf:
+            X4[0] = fv[i, 1]
+            X4[1] = faces[fv[i, 0], 0]
+            X4[2] = faces[fv[i, 0], 1]
+            X4[3] = faces[fv[i, 0], 2]
+            kd = PT_KIND[t]
+            mollified = False
+        else:
+            X4[0] = edges[ee[i - nf, 0], 0]
+            X4[1] = edges[ee[i - nf, 0], 1]
+            X4[2] = edges[ee[i - nf, 1], 0]
+            X4[3] = edges[ee[i - nf, 1], 1]
+            kd = EE_KIND[t]
+            mollified = eps[i] > 0.0
+        kind[c] = kd
+        dist[c] = sqd[i]
+        if mollified:  # all four vertices; the distance keeps its closest-feature stencil
+            for j in range(4):
+                verts[c, j] = X4[j]
+                local[c, j] = EE_LOCAL[t, j]
+            eps_out[c] = eps[i]
+        else:
+            k = 0
+            for j in range(4):
+                lj = PT_LOCAL[t, j] if i < nf else EE_LOCAL[t, j]
+                if lj < 0:
+                    break
+                verts[c, j] = X4[lj]
+                local[c, j] = j
+                k += 1
+            if kd == PP or kd == PL:
+                p, q = np.int64(verts[c, 0]), np.int64(verts[c, 1])
+                r = np.int64(verts[c, 2]) if kd == PL else np.int64(-1)
+                if kd == PP and q < p:
+                    p, q = q, p
+                if kd == PL and r < q:
+                    q, r = r, q
+                verts[c, 0], verts[c, 1] = p, q
+                if kd == PL:
+                    verts[c, 2] = r
+                key[c] = ((np.int64(kd) * nv + p) * nv + q) * (nv + 1) + (r + 1)
+        c += 1
+    # merge repeated EV / VV pairs
+    order = np.argsort(key)
+    keep = np.ones(m, np.bool_)
+    weight = np.ones(m)
+    j = 0
+    while j < m:
+        cj = order[j]
+        if key[cj] < 0:
+            j += 1
+            continue
+        e = j + 1
+        while e < m and key[order[e]] == key[cj]:
+            keep[order[e]] = False
+            e += 1
+        weight[cj] = e - j
+        j = e
+    mk = 0
+    for i in range(m):
+        if keep[i]:
+            mk += 1
+    out = np.empty(mk, np.int64)
+    mk = 0
+    for i in range(m):
+        if keep[i]:
+            out[mk] = i
+            mk += 1
+    return verts[out], kind[out], local[out], eps_out[out], weight[out], dist[out]
 
 
 class CollisionSet:
@@ -131,95 +224,19 @@ class CollisionSet:
                             np.zeros(0), np.zeros(0), np.zeros(0))
 
 
-_IDENTITY_LOCAL = np.array([[0, 1, -1, -1], [0, 1, 2, -1], [0, 1, 2, 3], [0, 1, 2, 3]], dtype=np.int8)
-
-
-def _stencils(X4: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """Rows of the 4-vertex tuples ``X4`` picked by a (m, 4) local-index table (−1 stays −1)."""
-    return np.where(local >= 0, np.take_along_axis(X4, np.maximum(local, 0).astype(np.int64), axis=1), -1)
-
-
 def build_collision_set(V: np.ndarray, edges: np.ndarray, faces: np.ndarray, fv: np.ndarray, ee: np.ndarray,
                         dhat: float, rest_len2: np.ndarray) -> CollisionSet:
     """Classify face–vertex (``fv`` rows [face, vertex]) and edge–edge (``ee`` rows [edge a, edge b])
     candidates at positions ``V`` into the unique active collisions (squared distance < d̂²).
     ``rest_len2``: squared rest length of every edge (mollifier thresholds)."""
-    dhat2 = float(dhat) ** 2
-    nv = V.shape[0]
-    parts_verts, parts_kind, parts_local, parts_eps, parts_d, parts_w = [], [], [], [], [], []
-    pair_rows = []  # EV / VV stencils (point first), deduplicated below
-
-    if fv.shape[0]:
-        ptype = np.empty(fv.shape[0], np.int64)
-        sqd = np.empty(fv.shape[0])
-        _classify_face_vertex(V, faces, fv, dhat2, ptype, sqd)
-        on = sqd < dhat2
-        X4 = np.column_stack([fv[on, 1], faces[fv[on, 0]]]).astype(np.int64)
-        t = ptype[on]
-        loc = PT_LOCAL[t]
-        kind = PT_KIND[t]
-        st = _stencils(X4, loc)
-        plane = kind == PPLANE
-        parts_verts.append(st[plane]); parts_kind.append(kind[plane])
-        parts_local.append(np.broadcast_to(_IDENTITY_LOCAL[PPLANE], (int(plane.sum()), 4)))
-        parts_eps.append(np.zeros(int(plane.sum()))); parts_d.append(sqd[on][plane])
-        parts_w.append(np.ones(int(plane.sum())))
-        pair_rows.append((st[~plane], kind[~plane], sqd[on][~plane]))
-
-    if ee.shape[0]:
-        etype = np.empty(ee.shape[0], np.int64)
-        sqd = np.empty(ee.shape[0])
-        eps = np.empty(ee.shape[0])
-        cross2 = np.empty(ee.shape[0])
-        _classify_edge_edge(V, edges, ee, rest_len2, dhat2, etype, sqd, eps, cross2)
-        on = sqd < dhat2
-        X4 = np.column_stack([edges[ee[on, 0]], edges[ee[on, 1]]]).astype(np.int64)
-        t, d, e = etype[on], sqd[on], eps[on]
-        moll = cross2[on] < e
-        kind = EE_KIND[t]
-        # mollified: all four vertices, distance of the closest-feature type
-        parts_verts.append(X4[moll]); parts_kind.append(kind[moll]); parts_local.append(EE_LOCAL[t[moll]])
-        parts_eps.append(e[moll]); parts_d.append(d[moll]); parts_w.append(np.ones(int(moll.sum())))
-        # not mollified: line–line stays EE, the others become EV / VV
-        ll = ~moll & (kind == LL)
-        parts_verts.append(X4[ll]); parts_kind.append(kind[ll])
-        parts_local.append(np.broadcast_to(_IDENTITY_LOCAL[LL], (int(ll.sum()), 4)))
-        parts_eps.append(np.zeros(int(ll.sum()))); parts_d.append(d[ll]); parts_w.append(np.ones(int(ll.sum())))
-        rest = ~moll & (kind != LL)
-        pair_rows.append((_stencils(X4[rest], EE_LOCAL[t[rest]]), kind[rest], d[rest]))
-
-    if pair_rows:
-        st = np.concatenate([r[0] for r in pair_rows])
-        kind = np.concatenate([r[1] for r in pair_rows])
-        d = np.concatenate([r[2] for r in pair_rows])
-        if st.shape[0]:
-            # unique by (point, sorted other vertices): the same EV / VV found from several candidates
-            o1 = np.where(st[:, 2] >= 0, np.minimum(st[:, 1], st[:, 2]), st[:, 1])
-            o2 = np.where(st[:, 2] >= 0, np.maximum(st[:, 1], st[:, 2]), -1)
-            if np.any(kind == PP):  # point–point is symmetric too
-                pp = kind == PP
-                a, b = st[pp, 0].copy(), st[pp, 1].copy()
-                st[pp, 0], o1[pp] = np.minimum(a, b), np.maximum(a, b)
-            key = (kind.astype(np.int64) * nv + st[:, 0]) * nv + o1
-            key = key * (nv + 1) + (o2 + 1)
-            _, first, count = np.unique(key, return_index=True, return_counts=True)
-            st, kind, d = st[first], kind[first], d[first]
-            st[:, 1] = o1[first]
-            st[:, 2] = o2[first]
-            parts_verts.append(st); parts_kind.append(kind)
-            parts_local.append(_IDENTITY_LOCAL[kind] * (st >= 0) - (st < 0))
-            parts_eps.append(np.zeros(kind.size)); parts_d.append(d); parts_w.append(count.astype(np.float64))
-
-    if not parts_kind:
+    n = fv.shape[0] + ee.shape[0]
+    if n == 0:
         return CollisionSet.empty()
-    return CollisionSet(
-        np.ascontiguousarray(np.concatenate(parts_verts), dtype=np.int32),
-        np.ascontiguousarray(np.concatenate(parts_kind), dtype=np.int8),
-        np.ascontiguousarray(np.concatenate(parts_local), dtype=np.int8),
-        np.ascontiguousarray(np.concatenate(parts_eps), dtype=np.float64),
-        np.ascontiguousarray(np.concatenate(parts_w), dtype=np.float64),
-        np.ascontiguousarray(np.concatenate(parts_d), dtype=np.float64),
-    )
+    ctype = np.empty(n, np.int64)
+    sqd = np.empty(n)
+    eps = np.empty(n)
+    _classify(V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
+    return CollisionSet(*_compact(fv, ee, faces, edges, ctype, sqd, eps, float(dhat) ** 2, V.shape[0]))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -241,11 +258,11 @@ def _gather(V, verts, local, c, X, S):  # pragma: no cover - compiled
     return n, k
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _values(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
-    for c in prange(kind.size):
-        X = np.empty((4, 3))
-        S4 = np.empty((4, 3))
+@njit(cache=True, error_model="numpy")
+def _values_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
+    X = np.empty((4, 3))
+    S4 = np.empty((4, 3))
+    for c in range(c0, c1):
         n, k = _gather(V, verts, local, c, X, S4)
         d = sq_distance(kind[c], S4[:k])
         b = barrier(d, dhat2)
@@ -255,30 +272,43 @@ def _values(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _gradients(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
-    """out[c, :3n] = ∇(m b) of collision c on its n vertices (vertex-major)."""
-    for c in prange(kind.size):
-        X = np.empty((4, 3))
-        S4 = np.empty((4, 3))
-        gd = np.empty(12)
-        gm = np.empty(12)
+def _values(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
+    m = kind.size
+    for ch in prange((m + CHUNK - 1) // CHUNK):
+        _values_chunk(ch * CHUNK, min(m, (ch + 1) * CHUNK), V, verts, kind, local, eps, weight, dhat2, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _gradients_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
+    """out[c, :3n] = weight·∇(m b) of collision c on its n vertices (vertex-major)."""
+    X = np.empty((4, 3))
+    S4 = np.empty((4, 3))
+    gd = np.empty(12)
+    gm = np.empty(12)
+    for c in range(c0, c1):
         n, k = _gather(V, verts, local, c, X, S4)
         d = sq_distance_gradient(kind[c], S4[:k], gd)
         b1 = barrier_first_derivative(d, dhat2)
         for j in range(12):
             out[c, j] = 0.0
         w = weight[c]
+        m = 1.0
         if eps[c] > 0.0:
             m = ee_mollifier_gradient(X, eps[c], gm)
             b = barrier(d, dhat2)
             for j in range(12):
                 out[c, j] = w * b * gm[j]
-        else:
-            m = 1.0
         for a in range(k):
             la = local[c, a]
             for r in range(3):
                 out[c, 3 * la + r] += w * m * b1 * gd[3 * a + r]
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _gradients(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no cover - compiled
+    m = kind.size
+    for ch in prange((m + CHUNK - 1) // CHUNK):
+        _gradients_chunk(ch * CHUNK, min(m, (ch + 1) * CHUNK), V, verts, kind, local, eps, weight, dhat2, out)
 
 
 @njit(cache=True, error_model="numpy")
