@@ -145,7 +145,9 @@ class ContactModel:
 
     def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes
-        within d̂ anywhere on the segment is in the set (used for CCD and for the line-search trials)."""
+        within d̂ anywhere on the segment is in the set. Used for the line-search trials' collision sets, and
+        with the ipctk barrier also for CCD (ipctk ``Candidates``); the compiled barrier returns (fv, ee) arrays
+        and CCD then runs its own broad phase."""
         if self.compiled:
             return self._candidates(self.surface_positions(x0), self.surface_positions(x1))
         cand = ipctk.Candidates()
