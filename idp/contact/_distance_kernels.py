@@ -302,6 +302,21 @@ def _mirror_upper(H, m):
 
 
 @njit(cache=True, error_model="numpy")
+def edge_cross(X, i0, i1, j0, j1):
+    """a = X[i1] − X[i0], b = X[j1] − X[j0] and n = a × b, as nine scalars (a, b, n)."""
+    a0 = X[i1, 0] - X[i0, 0]
+    a1 = X[i1, 1] - X[i0, 1]
+    a2 = X[i1, 2] - X[i0, 2]
+    b0 = X[j1, 0] - X[j0, 0]
+    b1 = X[j1, 1] - X[j0, 1]
+    b2 = X[j1, 2] - X[j0, 2]
+    n0 = a1 * b2 - a2 * b1
+    n1 = a2 * b0 - a0 * b2
+    n2 = a0 * b1 - a1 * b0
+    return a0, a1, a2, b0, b1, b2, n0, n1, n2
+
+
+@njit(cache=True, error_model="numpy")
 def sq_distance(kind, X):
     """Squared distance of the stencil X (rows in stencil order) of the given kind."""
     if kind == PP:
@@ -321,25 +336,12 @@ def sq_distance(kind, X):
         w1 = r1 - t * u1
         w2 = r2 - t * u2
         return w0 * w0 + w1 * w1 + w2 * w2
-    if kind == PPLANE:
+    if kind == PPLANE:  # normal of the plane through X[1], X[2], X[3]
         o = 1
-        a0 = X[2, 0] - X[1, 0]
-        a1 = X[2, 1] - X[1, 1]
-        a2 = X[2, 2] - X[1, 2]
-        b0 = X[3, 0] - X[1, 0]
-        b1 = X[3, 1] - X[1, 1]
-        b2 = X[3, 2] - X[1, 2]
-    else:
+        _a0, _a1, _a2, _b0, _b1, _b2, n0, n1, n2 = edge_cross(X, 1, 2, 1, 3)
+    else:  # common normal of the lines X[0]X[1] and X[2]X[3]
         o = 2
-        a0 = X[1, 0] - X[0, 0]
-        a1 = X[1, 1] - X[0, 1]
-        a2 = X[1, 2] - X[0, 2]
-        b0 = X[3, 0] - X[2, 0]
-        b1 = X[3, 1] - X[2, 1]
-        b2 = X[3, 2] - X[2, 2]
-    n0 = a1 * b2 - a2 * b1
-    n1 = a2 * b0 - a0 * b2
-    n2 = a0 * b1 - a1 * b0
+        _a0, _a1, _a2, _b0, _b1, _b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
     s = (X[0, 0] - X[o, 0]) * n0 + (X[0, 1] - X[o, 1]) * n1 + (X[0, 2] - X[o, 2]) * n2
     return s * s / (n0 * n0 + n1 * n1 + n2 * n2)
 
@@ -633,23 +635,9 @@ def ee_mollifier_threshold(ea0_rest, ea1_rest, eb0_rest, eb1_rest):
 
 
 @njit(cache=True, error_model="numpy")
-def _cross_edges(X):
-    a0 = X[1, 0] - X[0, 0]
-    a1 = X[1, 1] - X[0, 1]
-    a2 = X[1, 2] - X[0, 2]
-    b0 = X[3, 0] - X[2, 0]
-    b1 = X[3, 1] - X[2, 1]
-    b2 = X[3, 2] - X[2, 2]
-    n0 = a1 * b2 - a2 * b1
-    n1 = a2 * b0 - a0 * b2
-    n2 = a0 * b1 - a1 * b0
-    return a0, a1, a2, b0, b1, b2, n0, n1, n2
-
-
-@njit(cache=True, error_model="numpy")
 def ee_mollifier(X, eps_x):
     """m(c), c = |(ea1 - ea0) x (eb1 - eb0)|^2; X rows ea0, ea1, eb0, eb1."""
-    _a0, _a1, _a2, _b0, _b1, _b2, n0, n1, n2 = _cross_edges(X)
+    _a0, _a1, _a2, _b0, _b1, _b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
     c = n0 * n0 + n1 * n1 + n2 * n2
     if c < eps_x:
         q = c / eps_x
@@ -660,7 +648,7 @@ def ee_mollifier(X, eps_x):
 @njit(cache=True, error_model="numpy")
 def ee_mollifier_gradient(X, eps_x, g):
     """Gradient of m into g[:12] (zero when c >= eps_x); return m."""
-    a0, a1, a2, b0, b1, b2, n0, n1, n2 = _cross_edges(X)
+    a0, a1, a2, b0, b1, b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
     c = n0 * n0 + n1 * n1 + n2 * n2
     if c >= eps_x:
         for i in range(12):
@@ -689,7 +677,7 @@ def ee_mollifier_hessian(X, eps_x, g, H):
     m'' = -2 / eps_x^2, m' = 2 (1 - c/eps_x) / eps_x;
     d^2c/dx_V dx_W = 2 [(p_V.p_W) I - p_V p_W^T - 2 k_VW [n]x],  k_VW = MA_V MB_W - MB_V MA_W.
     """
-    a0, a1, a2, b0, b1, b2, n0, n1, n2 = _cross_edges(X)
+    a0, a1, a2, b0, b1, b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
     c = n0 * n0 + n1 * n1 + n2 * n2
     if c >= eps_x:
         for i in range(12):

@@ -49,6 +49,8 @@ import math
 import numpy as np
 from numba import njit
 
+from idp._small_dense import symmetric_eigen_jacobi
+
 #: Largest supported block size (columns of ``work``).
 KMAX = 12
 
@@ -391,50 +393,15 @@ def _jacobi_project(H: np.ndarray, k: int, work: np.ndarray, scale: float) -> No
     for i in range(k):
         for j in range(k):
             work[i, j] = H[i, j] * inv
-            work[_VEC + i, j] = 1.0 if i == j else 0.0  # V in rows _VEC.._VEC+k-1
-    for _sweep in range(60):
-        off = 0.0
-        for r in range(k):
-            for c in range(r + 1, k):
-                off += work[r, c] * work[r, c]
-        if not (off > 1e-36):
-            break
-        for p in range(k - 1):
-            for q in range(p + 1, k):
-                apq = work[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (work[q, q] - work[p, p]) / (2.0 * apq)
-                if abs(theta) > 1e150:
-                    t = 0.5 / theta
-                else:
-                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                    if theta < 0.0:
-                        t = -t
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                s = t * c
-                for r in range(k):
-                    sp = work[r, p]
-                    sq = work[r, q]
-                    work[r, p] = c * sp - s * sq
-                    work[r, q] = s * sp + c * sq
-                for r in range(k):
-                    sp = work[p, r]
-                    sq = work[q, r]
-                    work[p, r] = c * sp - s * sq
-                    work[q, r] = s * sp + c * sq
-                for r in range(k):
-                    vp = work[_VEC + r, p]
-                    vq = work[_VEC + r, q]
-                    work[_VEC + r, p] = c * vp - s * vq
-                    work[_VEC + r, q] = s * vp + c * vq
+    lam = work[_D, :k]
+    Q = work[_VEC:_VEC + k, :k]  # eigenvectors in columns
+    symmetric_eigen_jacobi(work[:k, :k], k, Q, lam)
     for i in range(k):
         for j in range(i, k):
             acc = 0.0
             for q in range(k):
-                lam = work[q, q]
-                if lam > 0.0:
-                    acc += lam * work[_VEC + i, q] * work[_VEC + j, q]
+                if lam[q] > 0.0:
+                    acc += lam[q] * Q[i, q] * Q[j, q]
             acc *= scale
             H[i, j] = acc
             H[j, i] = acc

@@ -33,6 +33,7 @@ from numba import njit, prange
 
 from idp.contact._distance_kernels import (
     EE_KIND,
+    EE_MOLLIFIER_FACTOR,
     EE_LOCAL,
     PL,
     PP,
@@ -41,10 +42,12 @@ from idp.contact._distance_kernels import (
     barrier,
     barrier_first_derivative,
     barrier_second_derivative,
+    edge_cross,
     edge_edge_type,
     ee_mollifier,
     ee_mollifier_gradient,
     ee_mollifier_hessian,
+    gather_stencil,
     point_triangle_type,
     sq_distance,
     sq_distance_gradient,
@@ -54,7 +57,6 @@ from idp.contact._psd_projection import WORK_ROWS, project_psd
 
 #: Collisions per parallel work item (scratch arrays allocated once per chunk).
 CHUNK = 64
-MOLLIFIER_FACTOR = 1e-3
 
 
 # --------------------------------------------------------------------------------------------------
@@ -77,10 +79,7 @@ def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
             X[2] = V[faces[f, 1]]
             X[3] = V[faces[f, 2]]
             t = point_triangle_type(X[0], X[1], X[2], X[3])
-            k = 0
-            while k < 4 and PT_LOCAL[t, k] >= 0:
-                S[k] = X[PT_LOCAL[t, k]]
-                k += 1
+            k = gather_stencil(PT_LOCAL[t], X, S)
             ctype[i] = t
             sqd[i] = sq_distance(PT_KIND[t], S[:k])
             eps[i] = 0.0
@@ -91,18 +90,11 @@ def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
             X[2] = V[edges[eb, 0]]
             X[3] = V[edges[eb, 1]]
             t = edge_edge_type(X[0], X[1], X[2], X[3])
-            k = 0
-            while k < 4 and EE_LOCAL[t, k] >= 0:
-                S[k] = X[EE_LOCAL[t, k]]
-                k += 1
+            k = gather_stencil(EE_LOCAL[t], X, S)
             ctype[i] = t
             sqd[i] = sq_distance(EE_KIND[t], S[:k])
-            threshold = MOLLIFIER_FACTOR * rest_len2[ea] * rest_len2[eb]
-            ux, uy, uz = X[1, 0] - X[0, 0], X[1, 1] - X[0, 1], X[1, 2] - X[0, 2]
-            wx, wy, wz = X[3, 0] - X[2, 0], X[3, 1] - X[2, 1], X[3, 2] - X[2, 2]
-            cx = uy * wz - uz * wy
-            cy = uz * wx - ux * wz
-            cz = ux * wy - uy * wx
+            threshold = EE_MOLLIFIER_FACTOR * rest_len2[ea] * rest_len2[eb]
+            _a0, _a1, _a2, _b0, _b1, _b2, cx, cy, cz = edge_cross(X, 0, 1, 2, 3)
             eps[i] = threshold if cx * cx + cy * cy + cz * cz < threshold else 0.0
 
 
@@ -251,11 +243,7 @@ def _gather(V, verts, local, c, X, S):  # pragma: no cover - compiled
     while n < 4 and verts[c, n] >= 0:
         X[n] = V[verts[c, n]]
         n += 1
-    k = 0
-    while k < 4 and local[c, k] >= 0:
-        S[k] = X[local[c, k]]
-        k += 1
-    return n, k
+    return n, gather_stencil(local[c], X, S)
 
 
 @njit(cache=True, error_model="numpy")

@@ -102,8 +102,10 @@ class ContactModel:
         self.num_dynamic_collision_vertices = n_dyn_cm
         if self.compiled:
             from idp.contact import compiled_barrier
+            from idp.contact._broad_phase import surface_candidates
 
             self._cb = compiled_barrier
+            self._surface_candidates = surface_candidates
             self._edges = np.ascontiguousarray(self.mesh.edges, dtype=np.int32)
             self._faces = np.ascontiguousarray(self.mesh.faces, dtype=np.int32)
             rest = np.asarray(self.mesh.rest_positions)
@@ -139,9 +141,7 @@ class ContactModel:
         return ContactEvaluation(c, vs, len(c))
 
     def _candidates(self, v0: np.ndarray, v1: np.ndarray | None):
-        from idp.contact._broad_phase import surface_candidates
-
-        return surface_candidates(v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices)
+        return self._surface_candidates(v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices)
 
     def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes

@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from idp._small_dense import symmetric_eigen_jacobi
+
 NEO_HOOKEAN = 0
 SYMMETRIC_DIRICHLET = 1
 
@@ -179,57 +181,6 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
     U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
     U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
     sig[2] = U[0, 2] * A[0, 2] + U[1, 2] * A[1, 2] + U[2, 2] * A[2, 2]
-
-
-@njit(cache=True, error_model="numpy")
-def _sym_eig(S: np.ndarray, d: int, Q: np.ndarray, lam: np.ndarray) -> None:
-    """Eigen-decomposition of a symmetric d x d matrix by cyclic Jacobi: S = Q diag(lam) Q^T.
-
-    S is overwritten (ends diagonal)."""
-    for r in range(d):
-        for c in range(d):
-            Q[r, c] = 1.0 if r == c else 0.0
-    for _sweep in range(50):
-        off = 0.0
-        tot = 0.0
-        for r in range(d):
-            for c in range(d):
-                tot += S[r, c] * S[r, c]
-                if r != c:
-                    off += S[r, c] * S[r, c]
-        if off == 0.0 or off <= 1e-32 * tot:
-            break
-        for p in range(d - 1):
-            for q in range(p + 1, d):
-                apq = S[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (S[q, q] - S[p, p]) / (2.0 * apq)
-                if abs(theta) > 1e150:
-                    t = 0.5 / theta
-                else:
-                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
-                    if theta < 0.0:
-                        t = -t
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                s = t * c
-                for r in range(d):  # columns: S J
-                    sp = S[r, p]
-                    sq = S[r, q]
-                    S[r, p] = c * sp - s * sq
-                    S[r, q] = s * sp + c * sq
-                for r in range(d):  # rows: J^T (S J)
-                    sp = S[p, r]
-                    sq = S[q, r]
-                    S[p, r] = c * sp - s * sq
-                    S[q, r] = s * sp + c * sq
-                for r in range(d):
-                    qp = Q[r, p]
-                    qq = Q[r, q]
-                    Q[r, p] = c * qp - s * qq
-                    Q[r, q] = s * qp + c * qq
-    for i in range(d):
-        lam[i] = S[i, i]
 
 
 @njit(cache=True, error_model="numpy")
@@ -410,7 +361,7 @@ def _element_chunk(t_begin: int, t_end: int, x: np.ndarray, elements: np.ndarray
             _sigma_eigensystem(model, pa, pb, sig, lnJ, d, S, flip, twist)
             direct = (not project) or _is_pd(S, d)
             if not direct:
-                _sym_eig(S, d, Q, lamS)
+                symmetric_eigen_jacobi(S, d, Q, lamS)
             # W = V^T Dm^{-T}: mode U M V^T maps to P = U M W
             for j in range(d):
                 for a in range(d):

@@ -19,29 +19,12 @@ def _scatter_add(out: np.ndarray, index: np.ndarray, values: np.ndarray, weight:
         out[index[k]] += weight * values[k]
 
 
-@numba.njit(cache=True)
-def _scatter_vertex_blocks(out, base, stride, blocks, weight):  # pragma: no cover
-    """Add weight·blocks[e] (nv·d × nv·d) into a block CSR: the (a, b) vertex block of element e starts
-    at base[e, a, b] (< 0: pinned, skipped) and its rows are stride[e, a, b] apart."""
-    g, nv = base.shape[0], base.shape[1]
-    d = blocks.shape[1] // nv
-    for e in range(g):
-        for a in range(nv):
-            for b in range(nv):
-                p0 = base[e, a, b]
-                if p0 < 0:
-                    continue
-                st = stride[e, a, b]
-                for i in range(d):
-                    for j in range(d):
-                        out[p0 + i * st + j] += weight * blocks[e, a * d + i, b * d + j]
-
-
 @numba.njit(cache=True, parallel=True)
-def _scatter_vertex_blocks_split(out, base, stride, blocks, weight, bounds):  # pragma: no cover
-    """:func:`_scatter_vertex_blocks` by several threads without races: thread t adds only the blocks whose
-    position lies in [bounds[t], bounds[t+1]) (boundaries between block rows, so a block never straddles
-    two ranges); every thread reads all element blocks and writes its own rows."""
+def _scatter_vertex_blocks(out, base, stride, blocks, weight, bounds):  # pragma: no cover
+    """Add weight·blocks[e] (nv·d × nv·d) into a block CSR: the (a, b) vertex block of element e starts at
+    base[e, a, b] (< 0: pinned, skipped) and its rows are stride[e, a, b] apart. Several threads without
+    races: thread t adds only the blocks whose position lies in [bounds[t], bounds[t+1]) (boundaries between
+    block rows, so a block never straddles two ranges); every thread reads all blocks, writes its own rows."""
     g, nv = base.shape[0], base.shape[1]
     d = blocks.shape[1] // nv
     for t in numba.prange(bounds.size - 1):
@@ -179,11 +162,8 @@ class FixedPatternAssembler:
         if self._block_scatter is not None:
             base, stride = self._block_scatter[energy_index]
             g = blocks.shape[0]
-            if self._scatter_bounds.size > 2:
-                _scatter_vertex_blocks_split(data, base[first: first + g], stride[first: first + g], blocks,
-                                             float(weight), self._scatter_bounds)
-            else:
-                _scatter_vertex_blocks(data, base[first: first + g], stride[first: first + g], blocks, float(weight))
+            _scatter_vertex_blocks(data, base[first: first + g], stride[first: first + g], blocks, float(weight),
+                                   self._scatter_bounds)
             return
         kk = blocks.shape[1] * blocks.shape[2]
         idx = self._element_scatter[energy_index][first * kk: (first + blocks.shape[0]) * kk]
