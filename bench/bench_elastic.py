@@ -19,11 +19,9 @@ from idp.energies.elastic import ElasticEnergy
 def tet_grid(nx: int, ny: int, nz: int) -> tuple[np.ndarray, np.ndarray]:
     """Unit-spaced grid of nx*ny*nz cubes, 6 positively oriented tets per cube (Kuhn split)."""
     dims = (nx + 1, ny + 1, nz + 1)
-    X = np.stack(np.meshgrid(*[np.arange(n, dtype=float) for n in dims], indexing="ij"),
-                 axis=-1).reshape(-1, 3)
+    X = np.stack(np.meshgrid(*[np.arange(n, dtype=float) for n in dims], indexing="ij"), axis=-1).reshape(-1, 3)
     idx = np.arange(X.shape[0]).reshape(dims)
-    base = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"),
-                    axis=-1).reshape(-1, 3)
+    base = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"), axis=-1).reshape(-1, 3)
     tets = []
     for perm in itertools.permutations(range(3)):
         off = np.zeros(3, int)
@@ -57,7 +55,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 E.value_gradient_hessian(x, project=project)
                 best = min(best, time.perf_counter() - t0)
-            print(f"{model:<20} {str(project):<8} {first:>10.3f} {best:>14.4f}")
+            print(f"{model:<20} {project!s:<8} {first:>10.3f} {best:>14.4f}")
 
 
 if __name__ == "__main__":

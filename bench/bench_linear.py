@@ -18,15 +18,16 @@ import json
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from idp.solver.linear import LinearSolver, ScipySolver, available_solvers, have_pymetis
 from idp.solver.grid_matrices import grid_edges
+from idp.solver.linear import LinearSolver, ScipySolver, available_solvers, have_pymetis
 
 
 def edge_matrix(
@@ -101,9 +102,16 @@ def bench_backend(kind: str, A: sp.csr_matrix, A2: sp.csr_matrix) -> dict[str, A
     x2 = s.solve(b)
     assert s.stats["symbolic_reuses"] == 1
     return {
-        "backend": kind, "n": A.shape[0], "nnz": int(A.nnz), "ordering": st["ordering"],
-        "symbolic": st["symbolic"], "numeric": st["numeric"], "solve": st["solve"],
-        "first_factorize": first, "refactor": refactor, "residual": max(res(A, x, b), res(A2, x2, b)),
+        "backend": kind,
+        "n": A.shape[0],
+        "nnz": int(A.nnz),
+        "ordering": st["ordering"],
+        "symbolic": st["symbolic"],
+        "numeric": st["numeric"],
+        "solve": st["solve"],
+        "first_factorize": first,
+        "refactor": refactor,
+        "residual": max(res(A, x, b), res(A2, x2, b)),
     }
 
 
@@ -126,13 +134,19 @@ def bench_pattern_change(nx: int, contacts: list[int]) -> list[dict[str, Any]]:
             s.factorize(Ac)
             total = time.perf_counter() - t0
             r = res(Ac, s.solve(b), b)  # before getfactor, which turns the factor back into a symbolic one
-            rows.append({
-                "n": A.shape[0], "contacts": k, "ordering_reused": reuse,
-                "ordering": s.stats["ordering"] - before["ordering"],
-                "symbolic": s.stats["symbolic"] - before["symbolic"],
-                "numeric": s.stats["numeric"] - before["numeric"], "total": total,
-                "nnz_L": len(cholmod.getfactor(s._F)), "residual": r,
-            })
+            rows.append(
+                {
+                    "n": A.shape[0],
+                    "contacts": k,
+                    "ordering_reused": reuse,
+                    "ordering": s.stats["ordering"] - before["ordering"],
+                    "symbolic": s.stats["symbolic"] - before["symbolic"],
+                    "numeric": s.stats["numeric"] - before["numeric"],
+                    "total": total,
+                    "nnz_L": len(cholmod.getfactor(s._F)),
+                    "residual": r,
+                }
+            )
     return rows
 
 
@@ -179,8 +193,16 @@ def bench_fallback_candidates(nx: int) -> list[dict[str, Any]]:
             cands["splu + METIS ND (idp 'scipy')"] = nd
         for name, f in cands.items():
             t, r = timed(f, A, b)
-            rows.append({"matrix": label, "n": A.shape[0], "method": name, "seconds": t, "residual": r,
-                         "iterations": its[0] if name.startswith("CG") else None})
+            rows.append(
+                {
+                    "matrix": label,
+                    "n": A.shape[0],
+                    "method": name,
+                    "seconds": t,
+                    "residual": r,
+                    "iterations": its[0] if name.startswith("CG") else None,
+                }
+            )
     return rows
 
 
@@ -196,12 +218,20 @@ def main() -> None:
     kinds += ["scipy", "scipy-mmd"] if have_pymetis() else ["scipy-mmd"]
 
     out: dict[str, Any] = {
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "loadavg_start": os.getloadavg(),
-                    "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}},
-        "backends": [], "pattern_change": [], "fallback_candidates": [],
+        "machine": {
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+            "loadavg_start": os.getloadavg(),
+            "threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
+        },
+        "backends": [],
+        "pattern_change": [],
+        "fallback_candidates": [],
     }
-    print(f"{'backend':12s} {'n':>7s} {'nnz':>9s} {'ordering':>9s} {'symbolic':>9s} {'numeric':>8s} "
-          f"{'solve':>7s} {'refactor':>9s} {'residual':>9s}")
+    print(
+        f"{'backend':12s} {'n':>7s} {'nnz':>9s} {'ordering':>9s} {'symbolic':>9s} {'numeric':>8s} "
+        f"{'solve':>7s} {'refactor':>9s} {'residual':>9s}"
+    )
     for nx in args.sizes:
         A, A2 = make_matrix(nx, seed=0), make_matrix(nx, seed=1)
         for kind in kinds:
@@ -209,23 +239,34 @@ def main() -> None:
                 continue  # 42 s per factorisation at 59K DOF: measured once, see the docstring of linear.py
             r = bench_backend(kind, A, A2)
             out["backends"].append(r)
-            print(f"{kind:12s} {r['n']:7d} {r['nnz']:9d} {r['ordering']:9.3f} {r['symbolic']:9.3f} "
-                  f"{r['numeric']:8.3f} {r['solve']:7.3f} {r['refactor']:9.3f} {r['residual']:9.1e}", flush=True)
+            print(
+                f"{kind:12s} {r['n']:7d} {r['nnz']:9d} {r['ordering']:9.3f} {r['symbolic']:9.3f} "
+                f"{r['numeric']:8.3f} {r['solve']:7.3f} {r['refactor']:9.3f} {r['residual']:9.1e}",
+                flush=True,
+            )
 
     if not args.quick and "cholmod" in kinds:
         print("\nCHOLMOD after a pattern change (near couplings added): fresh ND vs reused ordering")
-        print(f"{'n':>7s} {'contacts':>8s} {'reuse':>6s} {'ordering':>9s} {'symbolic':>9s} {'numeric':>8s} {'nnz(L)':>11s}")
+        print(
+            f"{'n':>7s} {'contacts':>8s} {'reuse':>6s} {'ordering':>9s} {'symbolic':>9s} {'numeric':>8s} {'nnz(L)':>11s}"
+        )
         for r in bench_pattern_change(args.sizes[-1], [10, 100, 1000]):
             out["pattern_change"].append(r)
-            print(f"{r['n']:7d} {r['contacts']:8d} {str(r['ordering_reused']):>6s} {r['ordering']:9.3f} "
-                  f"{r['symbolic']:9.3f} {r['numeric']:8.3f} {r['nnz_L']:11d}", flush=True)
+            print(
+                f"{r['n']:7d} {r['contacts']:8d} {r['ordering_reused']!s:>6s} {r['ordering']:9.3f} "
+                f"{r['symbolic']:9.3f} {r['numeric']:8.3f} {r['nnz_L']:11d}",
+                flush=True,
+            )
     if not args.quick:
         print(f"\nscipy fallback candidates, factor + solve at nx={args.sizes[0]}")
         for r in bench_fallback_candidates(args.sizes[0]):
             out["fallback_candidates"].append(r)
             extra = f"  ({r['iterations']} its)" if r["iterations"] else ""
-            print(f"{r['matrix']:18s} {r['n']:7d} {r['method']:32s} {r['seconds']:7.2f} s  res {r['residual']:.1e}"
-                  + extra, flush=True)
+            print(
+                f"{r['matrix']:18s} {r['n']:7d} {r['method']:32s} {r['seconds']:7.2f} s  res {r['residual']:.1e}"
+                + extra,
+                flush=True,
+            )
 
     out["machine"]["loadavg_end"] = os.getloadavg()
     path = Path(__file__).resolve().parent / "results" / "linear.json"

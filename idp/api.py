@@ -1,9 +1,9 @@
 """Python API: the same as a scene file, from code.
 
-    import idp
-    scene = idp.load_scene("scene.toml")          # or build idp.Scene(...) directly
-    result = idp.simulate(scene, "out", steps=10)
-    print(result.summary["fill_fraction"], result.summary["all_certified"])
+import idp
+scene = idp.load_scene("scene.toml")          # or build idp.Scene(...) directly
+result = idp.simulate(scene, "out", steps=10)
+print(result.summary["fill_fraction"], result.summary["all_certified"])
 """
 
 from __future__ import annotations
@@ -43,7 +43,19 @@ def simulate(
     built.run.resume = resume
     dofs_per_node = scene.dim
     linear = make_linear_solver(scene.solver.linear_solver, dofs_per_node=dofs_per_node)
-    meta = {"scene": scene.name, "resolved_scene": resolved, **built.meta, "linear_solver": linear.name,
-            "newton_tol": built.newton.tol, "h": scene.time.h}
-    log.info("dhat = %.6g (%s), %d vertices, %d elements", built.dhat, scene.contact.dhat_mode, built.meta["num_vertices"], built.meta["num_elements"])
+    meta = {
+        "scene": scene.name,
+        "resolved_scene": resolved,
+        **built.meta,
+        "linear_solver": linear.name,
+        "newton_tol": built.newton.tol,
+        "h": scene.time.h,
+    }
+    log.info(
+        "dhat = %.6g (%s), %d vertices, %d elements",
+        built.dhat,
+        scene.contact.dhat_mode,
+        built.meta["num_vertices"],
+        built.meta["num_elements"],
+    )
     return run_simulation(built.system, built.newton, linear, built.certifier, out, built.run, meta)

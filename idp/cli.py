@@ -33,8 +33,14 @@ def _cmd_run(args) -> int:
 
     scene = load_scene(args.scene)
     out = args.output or scene.output.dir
-    result = simulate(scene, out, steps=args.steps, progress=not args.quiet, resume=args.resume,
-                      check_every_iterate=True if args.check_iterates else None)
+    result = simulate(
+        scene,
+        out,
+        steps=args.steps,
+        progress=not args.quiet,
+        resume=args.resume,
+        check_every_iterate=True if args.check_iterates else None,
+    )
     _print_summary(result, Path(out))
     return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
 
@@ -50,7 +56,10 @@ def _print_summary(result, out: Path) -> None:
         f" (min surface distance {s['min_distance']:.3e})",
     ]
     if fill is not None:
-        lines.insert(0, f"fill fraction:      {100 * fill:.2f} % of the cage volume (start {100 * s['initial_fill_fraction']:.2f} %)")
+        lines.insert(
+            0,
+            f"fill fraction:      {100 * fill:.2f} % of the cage volume (start {100 * s['initial_fill_fraction']:.2f} %)",
+        )
     if s.get("dhat") is not None:
         lines.append(f"contact distance:   d̂ = {s['dhat']:.4g} (absolute)")
     lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
@@ -134,7 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="idp: %(levelname)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="idp: %(levelname)s: %(message)s"
+    )
     from idp.errors import CertificateError, IdpError, SolverError
 
     try:

@@ -11,7 +11,11 @@ def find_data_dir() -> Path | None:
     env = os.environ.get("IDP_DATA")
     candidates = [Path(env)] if env else []
     here = Path(__file__).resolve()
-    candidates += [Path.cwd() / ".." / "shared" / "data", here.parents[3] / "shared" / "data", here.parents[2] / "shared" / "data"]
+    candidates += [
+        Path.cwd() / ".." / "shared" / "data",
+        here.parents[3] / "shared" / "data",
+        here.parents[2] / "shared" / "data",
+    ]
     for c in candidates:
         if (c / "benchmark").is_dir():
             return c.resolve()
@@ -21,5 +25,7 @@ def find_data_dir() -> Path | None:
 def require_data_dir() -> Path:
     d = find_data_dir()
     if d is None:
-        raise FileNotFoundError("the paper's data was not found: set IDP_DATA to the folder holding benchmark/ (e.g. ../shared/data)")
+        raise FileNotFoundError(
+            "the paper's data was not found: set IDP_DATA to the folder holding benchmark/ (e.g. ../shared/data)"
+        )
     return d

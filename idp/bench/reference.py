@@ -5,12 +5,54 @@ shared/notes/reference.md §0 (wall = whole process, 60 steps, PNTol = 1). Paper
 """
 
 REFERENCE = {
-    "bunny_700": {"verts": 865, "tets": 2928, "wall": 24.4, "newton_iterations": 236, "fill": 0.9768, "peak_rss_mb": 102},
-    "bunny_1922": {"verts": 2529, "tets": 9203, "wall": 82.8, "newton_iterations": 294, "fill": 0.9839, "peak_rss_mb": 154},
-    "bunny_3376": {"verts": 4588, "tets": 17276, "wall": 184.7, "newton_iterations": 335, "fill": 0.9879, "peak_rss_mb": 223},
-    "bunny_4815": {"verts": 6641, "tets": 25375, "wall": 311.9, "newton_iterations": 358, "fill": 0.9882, "peak_rss_mb": 298},
-    "bunnyx30_13K": {"verts": 19075, "tets": 74351, "wall": 1208.0, "newton_iterations": 383, "fill": 0.9895, "peak_rss_mb": 583},
-    "tube_in_tube": {"verts": 4446, "tets": 18752, "wall": 1551.0, "newton_iterations": 1265, "fill": 0.8806, "peak_rss_mb": 413},
+    "bunny_700": {
+        "verts": 865,
+        "tets": 2928,
+        "wall": 24.4,
+        "newton_iterations": 236,
+        "fill": 0.9768,
+        "peak_rss_mb": 102,
+    },
+    "bunny_1922": {
+        "verts": 2529,
+        "tets": 9203,
+        "wall": 82.8,
+        "newton_iterations": 294,
+        "fill": 0.9839,
+        "peak_rss_mb": 154,
+    },
+    "bunny_3376": {
+        "verts": 4588,
+        "tets": 17276,
+        "wall": 184.7,
+        "newton_iterations": 335,
+        "fill": 0.9879,
+        "peak_rss_mb": 223,
+    },
+    "bunny_4815": {
+        "verts": 6641,
+        "tets": 25375,
+        "wall": 311.9,
+        "newton_iterations": 358,
+        "fill": 0.9882,
+        "peak_rss_mb": 298,
+    },
+    "bunnyx30_13K": {
+        "verts": 19075,
+        "tets": 74351,
+        "wall": 1208.0,
+        "newton_iterations": 383,
+        "fill": 0.9895,
+        "peak_rss_mb": 583,
+    },
+    "tube_in_tube": {
+        "verts": 4446,
+        "tets": 18752,
+        "wall": 1551.0,
+        "newton_iterations": 1265,
+        "fill": 0.8806,
+        "peak_rss_mb": 413,
+    },
 }
 
 PAPER = {

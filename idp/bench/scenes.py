@@ -20,12 +20,20 @@ def _base(name: str, steps: int, newton_tol: float = 1.0) -> dict:
     }
 
 
-def bunny_in_box(data: Path, mesh: str = "bunny_700.vtk", scale: float = 10.0, steps: int = 60, newton_tol: float = 1.0):
+def bunny_in_box(
+    data: Path, mesh: str = "bunny_700.vtk", scale: float = 10.0, steps: int = 60, newton_tol: float = 1.0
+):
     """Fig. 5: bunny grown (+0.1 per step for 20 steps, 3× linear) inside the fixed cube nice_cube.obj."""
     d = _base(Path(mesh).stem, steps, newton_tol)
     d["objects"] = [
-        {"name": "bunny", "kind": "deformable", "mesh": str(data / "benchmark" / mesh), "scale": scale,
-         "material": dict(NH_1E4), "rest_shape": {"growth_rate": 0.1, "growth_steps": 20}},
+        {
+            "name": "bunny",
+            "kind": "deformable",
+            "mesh": str(data / "benchmark" / mesh),
+            "scale": scale,
+            "material": dict(NH_1E4),
+            "rest_shape": {"growth_rate": 0.1, "growth_steps": 20},
+        },
         {"name": "box", "kind": "obstacle", "mesh": str(data / "benchmark" / "nice_cube.obj")},
     ]
     return scene_from_dict(d)
@@ -36,8 +44,13 @@ def tube_in_tube(data: Path, steps: int = 60, newton_tol: float = 1.0):
     d = _base("tube_in_tube", steps, newton_tol)
     mat = dict(NH_1E4, youngs_modulus=1e5)
     d["objects"] = [
-        {"name": "tube", "kind": "deformable", "mesh": str(data / "benchmark" / "tube.vtk"), "material": mat,
-         "rest_shape": {"scale": [1.1, 3.2, 1.1]}},
+        {
+            "name": "tube",
+            "kind": "deformable",
+            "mesh": str(data / "benchmark" / "tube.vtk"),
+            "material": mat,
+            "rest_shape": {"scale": [1.1, 3.2, 1.1]},
+        },
         {"name": "container", "kind": "obstacle", "mesh": str(data / "benchmark" / "tube_container.obj")},
     ]
     return scene_from_dict(d)
@@ -53,12 +66,20 @@ def hourglass(data: Path, which: str = "bunny", steps: int = 30, newton_tol: flo
     elif which == "bunny_700":
         obj = {"mesh": str(data / "benchmark" / "bunny_700.vtk"), "scale": 1.5}
     else:
-        obj = {"mesh": str(data / "benchmark" / "octocat23K.vtk"), "rotate": [{"axis": [1.0, 0.0, 0.0], "degrees": -90.0}]}
+        obj = {
+            "mesh": str(data / "benchmark" / "octocat23K.vtk"),
+            "rotate": [{"axis": [1.0, 0.0, 0.0], "degrees": -90.0}],
+        }
     d = _base(f"hourglass_{which}", steps, newton_tol)
     d["time"]["stop_when_stationary"] = True
     d["objects"] = [
-        {"name": which, "kind": "deformable", **obj, "material": dict(NH_1E4),
-         "rest_shape": {"growth_rate": 0.1, "growth_steps": 20}},
+        {
+            "name": which,
+            "kind": "deformable",
+            **obj,
+            "material": dict(NH_1E4),
+            "rest_shape": {"growth_rate": 0.1, "growth_steps": 20},
+        },
         {"name": "hourglass", "kind": "obstacle", "mesh": str(data / "benchmark" / "hourglass.obj")},
     ]
     return scene_from_dict(d)

@@ -24,15 +24,27 @@ def _tiny_scene():
     """A generated scene (no data needed) used by the test suite to exercise this code path."""
     from idp.scene.load import scene_from_dict
 
-    return scene_from_dict({
-        "name": "tiny", "time": {"h": 0.0016, "steps": 3}, "solver": {"newton_tol": 0.5},
-        "contact": {"dhat": 2e-3, "dhat_mode": "relative"}, "output": {"obj": False, "vtu": False, "png": False},
-        "objects": [
-            {"name": "ball", "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
-             "rest_shape": {"growth_rate": 0.2, "growth_steps": 3}},
-            {"name": "box", "kind": "obstacle", "generate": {"shape": "box_surface", "lo": [-0.45] * 3, "hi": [0.45] * 3, "resolution": 2}},
-        ],
-    })
+    return scene_from_dict(
+        {
+            "name": "tiny",
+            "time": {"h": 0.0016, "steps": 3},
+            "solver": {"newton_tol": 0.5},
+            "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
+            "output": {"obj": False, "vtu": False, "png": False},
+            "objects": [
+                {
+                    "name": "ball",
+                    "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+                    "rest_shape": {"growth_rate": 0.2, "growth_steps": 3},
+                },
+                {
+                    "name": "box",
+                    "kind": "obstacle",
+                    "generate": {"shape": "box_surface", "lo": [-0.45] * 3, "hi": [0.45] * 3, "resolution": 2},
+                },
+            ],
+        }
+    )
 
 
 def scene_table() -> dict:
@@ -80,8 +92,12 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         "contacts_per_step": [r["contacts"] for r in recs],
         "fill_per_step": [r["fill_fraction"] for r in recs],
         "fill_final": res.summary["fill_fraction"],
-        "certified_frames": sum(1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]),
-        "uncertified_frames": sum(1 for r in recs if not (r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"])),
+        "certified_frames": sum(
+            1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]
+        ),
+        "uncertified_frames": sum(
+            1 for r in recs if not (r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"])
+        ),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
     }
@@ -100,12 +116,16 @@ def _machine() -> str:
         pass
     import os
 
-    return f"{platform.system()} {platform.release()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
+    return (
+        f"{platform.system()} {platform.release()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
+    )
 
 
 def write_table(results: list[dict], out: Path) -> str:
-    rows = ["| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) | s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) | s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         ref = REFERENCE.get(r["scene"], {})
         rw = ref.get("wall")
@@ -119,16 +139,32 @@ def write_table(results: list[dict], out: Path) -> str:
             f"{r['newton_iterations']} ({ref.get('newton_iterations', '–')}) | {r['seconds_per_iteration']:.3f} ({ref_spi}) | "
             f"{fill} ({rfill}) | {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
         )
-    split_rows = ["", "Per Newton iteration (seconds): where the time goes", "",
-                  "| scene | assembly | linear solve | CCD | line search (trial energies) | contact build | certificate | other "
-                  "| assembly + CCD + contact build |", "|---|---|---|---|---|---|---|---|---|"]
+    split_rows = [
+        "",
+        "Per Newton iteration (seconds): where the time goes",
+        "",
+        "| scene | assembly | linear solve | CCD | line search (trial energies) | contact build | certificate | other "
+        "| assembly + CCD + contact build |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         s = r["per_iteration_split"]
         rest = s.get("assembly", 0.0) + s.get("ccd", 0.0) + s.get("contact_build", 0.0)
-        split_rows.append(f"| {r['scene']} | " + " | ".join(f"{s.get(k, 0.0):.4f}" for k in
-                          ("assembly", "linear_solve", "ccd", "line_search", "contact_build", "certificate", "other"))
-                          + f" | {rest:.4f} |")
-    paper = ["", "Paper's own figures (§6): " + "; ".join(f"{k}: {100 * v['fill']:.1f} % fill" + (f" ({v['note']})" if "note" in v else "") for k, v in PAPER.items())]
+        split_rows.append(
+            f"| {r['scene']} | "
+            + " | ".join(
+                f"{s.get(k, 0.0):.4f}"
+                for k in ("assembly", "linear_solve", "ccd", "line_search", "contact_build", "certificate", "other")
+            )
+            + f" | {rest:.4f} |"
+        )
+    paper = [
+        "",
+        "Paper's own figures (§6): "
+        + "; ".join(
+            f"{k}: {100 * v['fill']:.1f} % fill" + (f" ({v['note']})" if "note" in v else "") for k, v in PAPER.items()
+        ),
+    ]
     text = "\n".join([f"Machine: {_machine()}", ""] + rows + split_rows + paper) + "\n"
     (out / "results.md").write_text(text)
     return text
@@ -159,7 +195,11 @@ def write_plots(results: list[dict], out: Path) -> None:
         ax.loglog(n, t, "o-", label="idp")
         for ni, ti, nm in pts:
             ax.annotate(nm, (ni, ti), fontsize=7)
-        ref = [(REFERENCE[nm]["verts"], REFERENCE[nm]["wall"] / REFERENCE[nm]["newton_iterations"]) for nm in names if nm in REFERENCE]
+        ref = [
+            (REFERENCE[nm]["verts"], REFERENCE[nm]["wall"] / REFERENCE[nm]["newton_iterations"])
+            for nm in names
+            if nm in REFERENCE
+        ]
         if ref:
             rn, rt = zip(*ref)
             ax.loglog(rn, rt, "s--", label="reference (C++)")
@@ -188,7 +228,10 @@ def main(args) -> int:
             return 2
     else:
         if len(table) == 1:
-            print("idp bench: the paper's data was not found (set IDP_DATA); only the 'tiny' scene is available", file=sys.stderr)
+            print(
+                "idp bench: the paper's data was not found (set IDP_DATA); only the 'tiny' scene is available",
+                file=sys.stderr,
+            )
             return 2
         tiers = ("quick",) if args.quick else ("quick", "full")
         names = [n for n, (_, tier) in table.items() if tier in tiers]
@@ -209,8 +252,11 @@ def main(args) -> int:
         (out / f"{name}.json").write_text(json.dumps(res, indent=1))
         results.append(res)
         fill = "–" if res["fill_final"] is None else f"{100 * res['fill_final']:.2f} %"
-        print(f"  {res['wall_total']:.1f} s, {res['newton_iterations']} Newton its, fill {fill}, "
-              f"{res['certified_frames']}/{res['steps']} frames certified", flush=True)
+        print(
+            f"  {res['wall_total']:.1f} s, {res['newton_iterations']} Newton its, fill {fill}, "
+            f"{res['certified_frames']}/{res['steps']} frames certified",
+            flush=True,
+        )
     if results:
         print(write_table(results, out))
         write_plots(results, out)

@@ -323,8 +323,9 @@ def _chunks(start, k, spare):  # pragma: no cover
 
 
 @njit(cache=True, parallel=True)
-def _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big,
-           ee_at, fv_at, out_ee, out_fv, n_ee, n_fv):  # pragma: no cover
+def _pairs(
+    chunks, dims, start, items, lo, H, kind, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv
+):  # pragma: no cover
     """Test the candidate pairs of every cell. Chunk k writes its ee/fv rows into
     [ee_at[k], ee_at[k + 1]) / [fv_at[k], fv_at[k + 1]) while they fit and counts all it finds in
     n_ee[k] / n_fv[k] (a count above the slice means: rerun with bigger slices)."""
@@ -358,8 +359,9 @@ def _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big,
                     box[j, 3 + a] = H[g, a]
                 for a in range(4):
                     vt[j, a] = ri[g, a]
-                msk[j] = (np.int32(cmin[g, 0] == cx) | (np.int32(cmin[g, 1] == cy) << 1)
-                          | (np.int32(cmin[g, 2] == cz) << 2))
+                msk[j] = (
+                    np.int32(cmin[g, 0] == cx) | (np.int32(cmin[g, 1] == cy) << 1) | (np.int32(cmin[g, 2] == cz) << 2)
+                )
             for j in range(6):
                 kc[j + 1] += kc[j]
             # group of kind q: [kc[q], kc[q + 1])
@@ -377,9 +379,19 @@ def _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big,
                 a0, a1, a = vt[i, 0], vt[i, 1], vt[i, 3]
                 for j in range(i + 1, e2):
                     b0, b1 = vt[j, 0], vt[j, 1]
-                    ok = ((box[j, 0] <= h0) & (l0 <= box[j, 3]) & (box[j, 1] <= h1) & (l1 <= box[j, 4])
-                          & (box[j, 2] <= h2) & (l2 <= box[j, 5]) & ((mi | msk[j]) == 7)
-                          & (a0 != b0) & (a0 != b1) & (a1 != b0) & (a1 != b1))
+                    ok = (
+                        (box[j, 0] <= h0)
+                        & (l0 <= box[j, 3])
+                        & (box[j, 1] <= h1)
+                        & (l1 <= box[j, 4])
+                        & (box[j, 2] <= h2)
+                        & (l2 <= box[j, 5])
+                        & ((mi | msk[j]) == 7)
+                        & (a0 != b0)
+                        & (a0 != b1)
+                        & (a1 != b0)
+                        & (a1 != b1)
+                    )
                     if pe < ee_end:
                         b = vt[j, 3]
                         out_ee[pe, 0] = min(a, b)
@@ -394,9 +406,18 @@ def _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big,
                 a0, a1, a2, f = vt[i, 0], vt[i, 1], vt[i, 2], vt[i, 3]
                 for j in range(vend):
                     b = vt[j, 0]
-                    ok = ((box[j, 0] <= h0) & (l0 <= box[j, 3]) & (box[j, 1] <= h1) & (l1 <= box[j, 4])
-                          & (box[j, 2] <= h2) & (l2 <= box[j, 5]) & ((mi | msk[j]) == 7)
-                          & (a0 != b) & (a1 != b) & (a2 != b))
+                    ok = (
+                        (box[j, 0] <= h0)
+                        & (l0 <= box[j, 3])
+                        & (box[j, 1] <= h1)
+                        & (l1 <= box[j, 4])
+                        & (box[j, 2] <= h2)
+                        & (l2 <= box[j, 5])
+                        & ((mi | msk[j]) == 7)
+                        & (a0 != b)
+                        & (a1 != b)
+                        & (a2 != b)
+                    )
                     if pf < fv_end:
                         out_fv[pf, 0] = f
                         out_fv[pf, 1] = b
@@ -539,8 +560,20 @@ def surface_candidates(
             if a.size and (int(a.min()) < 0 or int(a.max()) >= nv):
                 raise ValueError(f"{name} reference vertices outside [0, {nv})")
         return _EMPTY.copy(), _EMPTY.copy()
-    fv, ee, status = _run(V0, V1, sweep, E, F, nd, inflation, numba.get_num_threads(), _CELL_SCALE,
-                          _CELLS_PER_PRIM, _CHUNKS_PER_THREAD, _SPARE_ROWS)
+    fv, ee, status = _run(
+        V0,
+        V1,
+        sweep,
+        E,
+        F,
+        nd,
+        inflation,
+        numba.get_num_threads(),
+        _CELL_SCALE,
+        _CELLS_PER_PRIM,
+        _CHUNKS_PER_THREAD,
+        _SPARE_ROWS,
+    )
     if status == 2:
         raise ValueError(f"edges or faces reference vertices outside [0, {nv})")
     if status:

@@ -394,7 +394,7 @@ def _jacobi_project(H: np.ndarray, k: int, work: np.ndarray, scale: float) -> No
         for j in range(k):
             work[i, j] = H[i, j] * inv
     lam = work[_D, :k]
-    Q = work[_VEC:_VEC + k, :k]  # eigenvectors in columns
+    Q = work[_VEC : _VEC + k, :k]  # eigenvectors in columns
     symmetric_eigen_jacobi(work[:k, :k], k, Q, lam)
     for i in range(k):
         for j in range(i, k):
@@ -576,8 +576,7 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
     (ValueError otherwise, or when H / work are too small).
     The symmetric part (H + Hᵀ)/2 is used (written back; a no-op for symmetric input).
     Matrices that are PSD up to ~k * TOL_PSD * max|H_ij| are returned unchanged."""
-    if k > KMAX or H.shape[0] < k or H.shape[1] < k or work.shape[0] < WORK_ROWS \
-            or work.shape[1] < KMAX:
+    if k > KMAX or H.shape[0] < k or H.shape[1] < k or work.shape[0] < WORK_ROWS or work.shape[1] < KMAX:
         raise ValueError("project_psd: need k <= 12, H at least k x k, work (WORK_ROWS, 12)")
     # symmetrise, find the scale and the smallest diagonal entry
     s = 0.0

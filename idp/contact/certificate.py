@@ -23,9 +23,9 @@ class Certificate:
     inversion_free: bool
     num_inverted: int
     min_element_volume: float
-    min_distance: float          # smallest surface distance among pairs closer than ``distance_query``; inf if none
+    min_distance: float  # smallest surface distance among pairs closer than ``distance_query``; inf if none
     distance_query: float
-    preserved_pairs: int         # intersecting input pairs allowed to persist (paper §5.5)
+    preserved_pairs: int  # intersecting input pairs allowed to persist (paper §5.5)
 
     @property
     def ok(self) -> bool:
@@ -72,7 +72,9 @@ class Certifier:
                 faces, edges = surface, ipctk.edges(surface)
             else:
                 faces, edges = np.zeros((0, 3), dtype=np.int32), surface
-            self.mesh = ipctk.CollisionMesh.build_from_full_mesh(np.ascontiguousarray(positions, dtype=float), edges, faces)
+            self.mesh = ipctk.CollisionMesh.build_from_full_mesh(
+                np.ascontiguousarray(positions, dtype=float), edges, faces
+            )
             self.to_full = np.asarray(self.mesh.to_full_vertex_id(), dtype=np.int64)
 
     def check(self, x: np.ndarray) -> Certificate:
@@ -100,4 +102,6 @@ class Certifier:
                 c.build(self.mesh, vs, self.distance_query, 0.0, ipctk.LBVH())
                 if len(c):
                     min_d = math.sqrt(max(c.compute_minimum_distance(self.mesh, vs), 0.0))
-        return Certificate(intersection_free, inversion_free, n_inv, min_vol, min_d, self.distance_query, self.num_excluded)
+        return Certificate(
+            intersection_free, inversion_free, n_inv, min_vol, min_d, self.distance_query, self.num_excluded
+        )

@@ -33,8 +33,8 @@ from numba import njit, prange
 
 from idp.contact._distance_kernels import (
     EE_KIND,
-    EE_MOLLIFIER_FACTOR,
     EE_LOCAL,
+    EE_MOLLIFIER_FACTOR,
     PL,
     PP,
     PT_KIND,
@@ -201,7 +201,7 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
 class CollisionSet:
     """Active IPC collisions at one configuration, as arrays (see the module docstring)."""
 
-    __slots__ = ("verts", "kind", "local", "eps", "weight", "sqdist")
+    __slots__ = ("eps", "kind", "local", "sqdist", "verts", "weight")
 
     def __init__(self, verts, kind, local, eps, weight, sqdist):
         self.verts, self.kind, self.local, self.eps = verts, kind, local, eps
@@ -211,13 +211,26 @@ class CollisionSet:
         return int(self.kind.size)
 
     @staticmethod
-    def empty() -> "CollisionSet":
-        return CollisionSet(np.zeros((0, 4), np.int32), np.zeros(0, np.int8), np.zeros((0, 4), np.int8),
-                            np.zeros(0), np.zeros(0), np.zeros(0))
+    def empty() -> CollisionSet:
+        return CollisionSet(
+            np.zeros((0, 4), np.int32),
+            np.zeros(0, np.int8),
+            np.zeros((0, 4), np.int8),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0),
+        )
 
 
-def build_collision_set(V: np.ndarray, edges: np.ndarray, faces: np.ndarray, fv: np.ndarray, ee: np.ndarray,
-                        dhat: float, rest_len2: np.ndarray) -> CollisionSet:
+def build_collision_set(
+    V: np.ndarray,
+    edges: np.ndarray,
+    faces: np.ndarray,
+    fv: np.ndarray,
+    ee: np.ndarray,
+    dhat: float,
+    rest_len2: np.ndarray,
+) -> CollisionSet:
     """Classify face–vertex (``fv`` rows [face, vertex]) and edge–edge (``ee`` rows [edge a, edge b])
     candidates at positions ``V`` into the unique active collisions (squared distance < d̂²).
     ``rest_len2``: squared rest length of every edge (mollifier thresholds)."""
@@ -300,8 +313,9 @@ def _gradients(V, verts, kind, local, eps, weight, dhat2, out):  # pragma: no co
 
 
 @njit(cache=True, error_model="numpy")
-def _hessian_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, kappa, vertex_map, project,
-                   block_verts, blocks):  # pragma: no cover - compiled
+def _hessian_chunk(
+    c0, c1, V, verts, kind, local, eps, weight, dhat2, kappa, vertex_map, project, block_verts, blocks
+):  # pragma: no cover - compiled
     X = np.empty((4, 3))
     S4 = np.empty((4, 3))
     gd = np.empty(12)
@@ -364,11 +378,27 @@ def _hessian_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, kappa, ver
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _hessians(V, verts, kind, local, eps, weight, dhat2, kappa, vertex_map, project, block_verts, blocks):  # pragma: no cover
+def _hessians(
+    V, verts, kind, local, eps, weight, dhat2, kappa, vertex_map, project, block_verts, blocks
+):  # pragma: no cover
     m = kind.size
     for ch in prange((m + CHUNK - 1) // CHUNK):
-        _hessian_chunk(ch * CHUNK, min(m, (ch + 1) * CHUNK), V, verts, kind, local, eps, weight, dhat2, kappa,
-                       vertex_map, project, block_verts, blocks)
+        _hessian_chunk(
+            ch * CHUNK,
+            min(m, (ch + 1) * CHUNK),
+            V,
+            verts,
+            kind,
+            local,
+            eps,
+            weight,
+            dhat2,
+            kappa,
+            vertex_map,
+            project,
+            block_verts,
+            blocks,
+        )
 
 
 @njit(cache=True, error_model="numpy")
@@ -402,8 +432,9 @@ def barrier_gradient(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float)
     return kappa * g
 
 
-def barrier_hessian_blocks(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float, vertex_map: np.ndarray,
-                           project: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def barrier_hessian_blocks(
+    cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float, vertex_map: np.ndarray, project: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-collision Hessian blocks on the optimised vertices only.
 
     ``vertex_map``: (len(V),) int64, the output numbering of each collision-mesh vertex, −1 for a vertex
@@ -414,8 +445,20 @@ def barrier_hessian_blocks(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: 
     block_verts = np.empty((m, 4), np.int32)
     blocks = np.empty((m, 12, 12))
     if m:
-        _hessians(V, cs.verts, cs.kind, cs.local, cs.eps, cs.weight, float(dhat) ** 2, float(kappa),
-                  np.ascontiguousarray(vertex_map, dtype=np.int64), bool(project), block_verts, blocks)
+        _hessians(
+            V,
+            cs.verts,
+            cs.kind,
+            cs.local,
+            cs.eps,
+            cs.weight,
+            float(dhat) ** 2,
+            float(kappa),
+            np.ascontiguousarray(vertex_map, dtype=np.int64),
+            bool(project),
+            block_verts,
+            blocks,
+        )
     return block_verts, blocks
 
 

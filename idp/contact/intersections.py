@@ -77,7 +77,7 @@ def _coplanar_disjoint(p, q, a, b, c, scale: float) -> np.ndarray:
         sp, sq = _sign2(x0, x1, P, scale), _sign2(x0, x1, Q, scale)
         out |= (side != 0) & (sp == -side) & (sq == -side)
     sa, sb, sc = (_sign2(P, Q, x, scale) for x in (A, B, C))
-    out |= ((sa == sb) & (sb == sc) & (sa != 0))
+    out |= (sa == sb) & (sb == sc) & (sa != 0)
     return out
 
 
@@ -133,8 +133,7 @@ def find_intersecting_pairs(vertices: np.ndarray, edges: np.ndarray, faces: np.n
 
     keep = np.flatnonzero(~reject)
     confirmed = [
-        i for i in keep
-        if ipctk.is_edge_intersecting_triangle(p[i], q[i], a[i], b[i], c[i])
+        i for i in keep if ipctk.is_edge_intersecting_triangle(p[i], q[i], a[i], b[i], c[i])
     ]  # loop over the few pairs the vectorised filter could not reject
     if not confirmed:
         return empty

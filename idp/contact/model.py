@@ -42,7 +42,7 @@ BARRIERS = ("compiled", "ipctk")
 class ContactEvaluation:
     """Collision set at one configuration, with what the Newton loop needs from it."""
 
-    collisions: "ipctk.NormalCollisions | CollisionSet"  # CollisionSet: idp.contact.compiled_barrier
+    collisions: ipctk.NormalCollisions | CollisionSet  # CollisionSet: idp.contact.compiled_barrier
     surface_positions: np.ndarray
     num_active: int
 
@@ -109,8 +109,11 @@ class ContactModel:
             self._edges = np.ascontiguousarray(self.mesh.edges, dtype=np.int32)
             self._faces = np.ascontiguousarray(self.mesh.faces, dtype=np.int32)
             rest = np.asarray(self.mesh.rest_positions)
-            self._edge_rest_len2 = np.ascontiguousarray(
-                ((rest[self._edges[:, 1]] - rest[self._edges[:, 0]]) ** 2).sum(axis=1)) if len(self._edges) else np.zeros(0)
+            self._edge_rest_len2 = (
+                np.ascontiguousarray(((rest[self._edges[:, 1]] - rest[self._edges[:, 0]]) ** 2).sum(axis=1))
+                if len(self._edges)
+                else np.zeros(0)
+            )
 
     # -- geometry -------------------------------------------------------------
     def broad_phase(self):
@@ -141,7 +144,9 @@ class ContactModel:
         return ContactEvaluation(c, vs, len(c))
 
     def _candidates(self, v0: np.ndarray, v1: np.ndarray | None):
-        return self._surface_candidates(v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices)
+        return self._surface_candidates(
+            v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices
+        )
 
     def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes
@@ -172,7 +177,9 @@ class ContactModel:
         if ev.num_active == 0:
             return np.zeros(ev.surface_positions.size)
         if self.compiled:
-            return self._cb.barrier_gradient(ev.collisions, ev.surface_positions, self.dhat, self.kappa if kappa is None else kappa)
+            return self._cb.barrier_gradient(
+                ev.collisions, ev.surface_positions, self.dhat, self.kappa if kappa is None else kappa
+            )
         return np.asarray(self.potential(kappa).gradient(ev.collisions, self.mesh, ev.surface_positions))
 
     def hessian(self, ev: ContactEvaluation, project: bool = True) -> sp.csc_matrix:
@@ -191,7 +198,9 @@ class ContactModel:
         """Compiled barrier only: per-collision Hessian blocks restricted to the vertices with
         ``vertex_map`` ≥ 0 (collision-mesh vertex → output vertex id), each projected to PSD after the
         restriction; see :func:`idp.contact.compiled_barrier.barrier_hessian_blocks`."""
-        return self._cb.barrier_hessian_blocks(ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project)
+        return self._cb.barrier_hessian_blocks(
+            ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project
+        )
 
     def min_distance(self, ev: ContactEvaluation) -> float:
         """Smallest distance among active pairs (not squared); ``inf`` when no pair is within d̂."""
@@ -202,7 +211,9 @@ class ContactModel:
         return float(np.sqrt(max(ev.collisions.compute_minimum_distance(self.mesh, ev.surface_positions), 0.0)))
 
     # -- stiffness ------------------------------------------------------------
-    def initialize_kappa(self, ev: ContactEvaluation, energy_gradient_collision: np.ndarray, average_mass: float) -> float:
+    def initialize_kappa(
+        self, ev: ContactEvaluation, energy_gradient_collision: np.ndarray, average_mass: float
+    ) -> float:
         """IPC initial stiffness (gradient balance, clamped to [κ_min, κ_max]); never lowers the current κ.
 
         With a user-given κ this only fills in κ_max (100× the given value)."""
@@ -221,12 +232,16 @@ class ContactModel:
         if not self.adaptive_kappa or not np.isfinite(min_distance) or not np.isfinite(prev_min_distance):
             return self.kappa
         self.kappa = float(
-            ipctk.update_barrier_stiffness(prev_min_distance**2, min_distance**2, self.kappa_max, self.kappa, self.bbox_diagonal)
+            ipctk.update_barrier_stiffness(
+                prev_min_distance**2, min_distance**2, self.kappa_max, self.kappa, self.bbox_diagonal
+            )
         )
         return self.kappa
 
     # -- CCD and checks -------------------------------------------------------
-    def max_collision_free_step(self, x0: np.ndarray, x1: np.ndarray, candidates=None, current_min_distance: float = np.inf) -> float:
+    def max_collision_free_step(
+        self, x0: np.ndarray, x1: np.ndarray, candidates=None, current_min_distance: float = np.inf
+    ) -> float:
         """Largest α in [0, 1] such that the linear move x0 → x0 + α(x1 − x0) is collision-free (CCD).
 
         Tight Inclusion's interval splitting degenerates when a pair is already nearly touching (measured:

@@ -70,8 +70,7 @@ def _inverse(M: np.ndarray, d: int, J: float, out: np.ndarray) -> None:
 
 
 @njit(cache=True, error_model="numpy")
-def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.ndarray,
-                  A: np.ndarray) -> None:
+def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.ndarray, A: np.ndarray) -> None:
     """F = U diag(sig) V^T with det U = det V = +1, |sig| descending, sign(sig[d-1]) = sign(det F).
 
     One-sided (Hestenes) Jacobi on the columns of A = F V, which gives singular values to
@@ -184,8 +183,17 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
 
 
 @njit(cache=True, error_model="numpy")
-def _sigma_eigensystem(model: int, a: float, b: float, sig: np.ndarray, lnJ: float, d: int,
-                       S: np.ndarray, flip: np.ndarray, twist: np.ndarray) -> None:
+def _sigma_eigensystem(
+    model: int,
+    a: float,
+    b: float,
+    sig: np.ndarray,
+    lnJ: float,
+    d: int,
+    S: np.ndarray,
+    flip: np.ndarray,
+    twist: np.ndarray,
+) -> None:
     """S = d^2 psi / d sigma^2; flip[i,j] = (psi_i - psi_j)/(s_i - s_j), twist[i,j] = (psi_i + psi_j)/(s_i + s_j).
 
     Closed forms that stay finite at s_i = s_j.  NH: a = mu, b = lambda; SD: a = weight w.
@@ -259,10 +267,23 @@ def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
 
 
 @njit(cache=True, error_model="numpy")
-def _element_chunk(t_begin: int, t_end: int, x: np.ndarray, elements: np.ndarray,
-                   dm_inv: np.ndarray, volumes: np.ndarray, model: int, param_a: np.ndarray,
-                   param_b: np.ndarray, want_grad: bool, want_hess: bool, project: bool,
-                   energy_out: np.ndarray, grad_out: np.ndarray, hess_out: np.ndarray) -> None:
+def _element_chunk(
+    t_begin: int,
+    t_end: int,
+    x: np.ndarray,
+    elements: np.ndarray,
+    dm_inv: np.ndarray,
+    volumes: np.ndarray,
+    model: int,
+    param_a: np.ndarray,
+    param_b: np.ndarray,
+    want_grad: bool,
+    want_hess: bool,
+    project: bool,
+    energy_out: np.ndarray,
+    grad_out: np.ndarray,
+    hess_out: np.ndarray,
+) -> None:
     """Serial body of `element_terms` for elements [t_begin, t_end) (scratch allocated once).
 
     Kept out of the prange loop so numba's parallel passes see a tiny loop (fast compile)."""
@@ -424,8 +445,7 @@ def _element_chunk(t_begin: int, t_end: int, x: np.ndarray, elements: np.ndarray
                             continue
                         for r in range(d):
                             for a in range(d):
-                                PW[r, a] = _SQRT_HALF * (U[r, i] * W[j, a]
-                                                         + sgn * U[r, j] * W[i, a])
+                                PW[r, a] = _SQRT_HALF * (U[r, i] * W[j, a] + sgn * U[r, j] * W[i, a])
                         _pull_back(PW, d, g)
                         _add_mode(H, g, v * lam, k)
             for i in range(k):
@@ -434,10 +454,21 @@ def _element_chunk(t_begin: int, t_end: int, x: np.ndarray, elements: np.ndarray
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
-def element_terms(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray, volumes: np.ndarray,
-                  model: int, param_a: np.ndarray, param_b: np.ndarray, want_grad: bool,
-                  want_hess: bool, project: bool, energy_out: np.ndarray, grad_out: np.ndarray,
-                  hess_out: np.ndarray) -> None:
+def element_terms(
+    x: np.ndarray,
+    elements: np.ndarray,
+    dm_inv: np.ndarray,
+    volumes: np.ndarray,
+    model: int,
+    param_a: np.ndarray,
+    param_b: np.ndarray,
+    want_grad: bool,
+    want_hess: bool,
+    project: bool,
+    energy_out: np.ndarray,
+    grad_out: np.ndarray,
+    hess_out: np.ndarray,
+) -> None:
     """Fill per-element energy (m,), gradient (m,k) and Hessian (m,k,k) (the last two if asked).
 
     Elements with det F <= 0 get energy +inf and NaN gradient / Hessian (barrier energies
@@ -448,9 +479,23 @@ def element_terms(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray, volum
     m = elements.shape[0]
     nchunk = (m + CHUNK - 1) // CHUNK
     for ch in prange(nchunk):
-        _element_chunk(ch * CHUNK, min(m, (ch + 1) * CHUNK), x, elements, dm_inv, volumes,
-                       model, param_a, param_b, want_grad, want_hess, project, energy_out,
-                       grad_out, hess_out)
+        _element_chunk(
+            ch * CHUNK,
+            min(m, (ch + 1) * CHUNK),
+            x,
+            elements,
+            dm_inv,
+            volumes,
+            model,
+            param_a,
+            param_b,
+            want_grad,
+            want_hess,
+            project,
+            energy_out,
+            grad_out,
+            hess_out,
+        )
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
@@ -493,10 +538,16 @@ def deformation_map(dm_inv: np.ndarray) -> np.ndarray:
     return B
 
 
-def element_terms_reference(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray,
-                            volumes: np.ndarray, model: int, param_a: np.ndarray,
-                            param_b: np.ndarray, project: bool = True
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def element_terms_reference(
+    x: np.ndarray,
+    elements: np.ndarray,
+    dm_inv: np.ndarray,
+    volumes: np.ndarray,
+    model: int,
+    param_a: np.ndarray,
+    param_b: np.ndarray,
+    project: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plain numpy (energy (m,), gradient (m,k), Hessian (m,k,k)); assumes all det F > 0."""
     m, d, _ = dm_inv.shape
     xe = x[elements]  # (m, d+1, d)
@@ -530,8 +581,7 @@ def element_terms_reference(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndar
     eye = np.eye(d, dtype=bool)[None]
     if model == NEO_HOOKEAN:
         cc = (a - b * lnJ)[:, None, None]
-        S = np.where(eye, a[:, None, None] + (cc + b[:, None, None]) / (si * sj),
-                     b[:, None, None] / (si * sj))
+        S = np.where(eye, a[:, None, None] + (cc + b[:, None, None]) / (si * sj), b[:, None, None] / (si * sj))
         flip = a[:, None, None] + cc / (si * sj)
         twist = a[:, None, None] - cc / (si * sj)
     else:

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def lumped_masses(num_vertices: int, elements: np.ndarray, volumes: np.ndarray, density: np.ndarray | float) -> np.ndarray:
+def lumped_masses(
+    num_vertices: int, elements: np.ndarray, volumes: np.ndarray, density: np.ndarray | float
+) -> np.ndarray:
     """Per-vertex lumped mass: each element gives density·volume/(d+1) to each of its vertices."""
     per_element = np.broadcast_to(np.asarray(density, dtype=float), volumes.shape) * volumes / elements.shape[1]
     return np.bincount(elements.ravel(), weights=np.repeat(per_element, elements.shape[1]), minlength=num_vertices)

@@ -60,8 +60,7 @@ class MeshReport:
         lines.append(f"  kind: {self.kind} ({self.dim}D), {self.num_vertices} vertices")
         if self.num_elements is not None:
             lines.append(
-                f"  elements: {self.num_elements} "
-                f"(inverted {self.num_inverted}, degenerate {self.num_degenerate})"
+                f"  elements: {self.num_elements} (inverted {self.num_inverted}, degenerate {self.num_degenerate})"
             )
         else:
             lines.append(f"  degenerate faces: {self.num_degenerate}")
@@ -94,9 +93,7 @@ def _check_volume(mesh: VolumeMesh, rep: MeshReport) -> np.ndarray:
     deg = np.flatnonzero(degenerate)
     rep.num_degenerate = int(deg.size)
     if deg.size:
-        rep.problems.append(
-            f"{deg.size} degenerate elements (zero or near-zero volume): {_indices(deg)}"
-        )
+        rep.problems.append(f"{deg.size} degenerate elements (zero or near-zero volume): {_indices(deg)}")
     if neg.size and pos.size:
         minority = neg if neg.size <= pos.size else pos
         rep.num_inverted = int(minority.size)
@@ -123,8 +120,9 @@ def check_mesh(path: str | os.PathLike) -> MeshReport:
         return MeshReport(path=p, kind="unreadable", problems=[str(exc)])
 
     if isinstance(mesh, VolumeMesh):
-        rep = MeshReport(path=p, kind="volume", dim=mesh.dim, num_vertices=mesh.num_vertices,
-                         num_elements=mesh.num_elements)
+        rep = MeshReport(
+            path=p, kind="volume", dim=mesh.dim, num_vertices=mesh.num_vertices, num_elements=mesh.num_elements
+        )
         faces = boundary_faces(_check_volume(mesh, rep))
     else:
         assert isinstance(mesh, SurfaceMesh)
@@ -132,9 +130,7 @@ def check_mesh(path: str | os.PathLike) -> MeshReport:
         faces = mesh.faces
         if faces.shape[1] == 3:
             v = mesh.vertices
-            area2 = np.linalg.norm(
-                np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1
-            )
+            area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
             deg = np.flatnonzero(area2 <= 1e-12 * float(area2.mean()))
             rep.num_degenerate = int(deg.size)
             if deg.size:
@@ -145,13 +141,9 @@ def check_mesh(path: str | os.PathLike) -> MeshReport:
     rep.topology = topo
     unit = "vertices" if faces.shape[1] == 2 else "edges"
     if topo.num_nonmanifold_edges:
-        rep.problems.append(
-            f"{topo.num_nonmanifold_edges} non-manifold {unit} (shared by more than two faces)"
-        )
+        rep.problems.append(f"{topo.num_nonmanifold_edges} non-manifold {unit} (shared by more than two faces)")
     if topo.num_inconsistent_edges:
-        rep.problems.append(
-            f"{topo.num_inconsistent_edges} {unit} where neighbouring faces have opposite orientation"
-        )
+        rep.problems.append(f"{topo.num_inconsistent_edges} {unit} where neighbouring faces have opposite orientation")
     if topo.num_boundary_edges:
         rep.notes.append(f"open surface: {topo.num_boundary_edges} boundary {unit}")
     if topo.is_closed and topo.is_consistently_oriented:

@@ -142,9 +142,7 @@ def tet_ellipsoid(
     return VolumeMesh(ball * r + _vec(center, 3, "center"), elements, source="tet_ellipsoid")
 
 
-def tet_ball(
-    radius: float = 1.0, center: Sequence[float] = (0.0, 0.0, 0.0), resolution: int = 6
-) -> VolumeMesh:
+def tet_ball(radius: float = 1.0, center: Sequence[float] = (0.0, 0.0, 0.0), resolution: int = 6) -> VolumeMesh:
     """Tet mesh of a ball (see :func:`tet_ellipsoid`)."""
     mesh = tet_ellipsoid((radius,) * 3, center, resolution)
     mesh.source = "tet_ball"
@@ -324,9 +322,7 @@ def tri_rectangle(
     return _box_simplex_mesh(lo, hi, resolution, 2, "tri_rectangle")
 
 
-def tri_disk(
-    radius: float = 1.0, center: Sequence[float] = (0.0, 0.0), resolution: int = 6
-) -> VolumeMesh:
+def tri_disk(radius: float = 1.0, center: Sequence[float] = (0.0, 0.0), resolution: int = 6) -> VolumeMesh:
     """2D triangle mesh of a disk: a (2*resolution)^2 grid of [-1,1]^2 mapped onto the disk."""
     if radius <= 0:
         raise MeshError(f"radius must be positive, got {radius}")
@@ -336,9 +332,7 @@ def tri_disk(
     return VolumeMesh(disk * radius + _vec(center, 2, "center"), elements, source="tri_disk")
 
 
-def polygon_circle(
-    radius: float, center: Sequence[float] = (0.0, 0.0), segments: int = 64
-) -> SurfaceMesh:
+def polygon_circle(radius: float, center: Sequence[float] = (0.0, 0.0), segments: int = 64) -> SurfaceMesh:
     """Closed counter-clockwise polyline (outward normals) approximating a circle."""
     if radius <= 0:
         raise MeshError(f"radius must be positive, got {radius}")
@@ -351,9 +345,7 @@ def polygon_circle(
     return SurfaceMesh(verts, np.stack([i, (i + 1) % segments], axis=1), source="polygon_circle")
 
 
-def polygon_box(
-    lo: Sequence[float], hi: Sequence[float], resolution: int | Sequence[int] = 4
-) -> SurfaceMesh:
+def polygon_box(lo: Sequence[float], hi: Sequence[float], resolution: int | Sequence[int] = 4) -> SurfaceMesh:
     """Closed counter-clockwise polyline around the rectangle [lo, hi], resolution segments per side."""
     lo_a, hi_a = _vec(lo, 2, "lo"), _vec(hi, 2, "hi")
     if np.any(hi_a <= lo_a):

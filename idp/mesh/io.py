@@ -51,8 +51,7 @@ def _read_meshio(path: Path):
 
     captured = _io.StringIO()
     try:
-        with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured), \
-                warnings.catch_warnings():
+        with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured), warnings.catch_warnings():
             # meshio's STL format sniffing overflows harmlessly on ASCII files.
             warnings.simplefilter("ignore", RuntimeWarning)
             return meshio.read(str(path))
@@ -78,8 +77,7 @@ def _check_vertices(points: np.ndarray, path: Path) -> np.ndarray:
     bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
     if bad.size:
         raise MeshError(
-            f"{path}: {bad.size} vertices have NaN or infinite coordinates "
-            f"(first bad vertex index {int(bad[0])})"
+            f"{path}: {bad.size} vertices have NaN or infinite coordinates (first bad vertex index {int(bad[0])})"
         )
     return pts
 
@@ -129,8 +127,7 @@ def _orient(
     if degenerate.any():
         bad = np.flatnonzero(degenerate)
         raise MeshError(
-            f"{path}: {bad.size} degenerate elements (zero or near-zero volume) "
-            f"(element indices: {_list(bad)})"
+            f"{path}: {bad.size} degenerate elements (zero or near-zero volume) (element indices: {_list(bad)})"
         )
     if negative.any():
         bad = np.flatnonzero(negative)
@@ -148,10 +145,7 @@ def _volume(
     if validate:
         rep = _repeated_vertex(elements)
         if rep.size:
-            raise MeshError(
-                f"{path}: {rep.size} degenerate elements repeat a vertex "
-                f"(element indices: {_list(rep)})"
-            )
+            raise MeshError(f"{path}: {rep.size} degenerate elements repeat a vertex (element indices: {_list(rep)})")
     vertices, elements = _compact(vertices, elements, path)
     elements = _orient(vertices, elements, path, fix_orientation, validate)
     return VolumeMesh(
@@ -166,9 +160,7 @@ def _surface(vertices: np.ndarray, faces: np.ndarray, path: Path, validate: bool
     if validate:
         rep = _repeated_vertex(faces)
         if rep.size:
-            raise MeshError(
-                f"{path}: {rep.size} degenerate faces repeat a vertex (face indices: {_list(rep)})"
-            )
+            raise MeshError(f"{path}: {rep.size} degenerate faces repeat a vertex (face indices: {_list(rep)})")
     if vertices.shape[1] == 2:
         vertices = np.column_stack([vertices, np.zeros(vertices.shape[0])])
     return SurfaceMesh(
@@ -220,8 +212,7 @@ def read_mesh(
         # Only segments: a 2D polyline (cage / obstacle boundary) if it lies in z = 0.
         if not planar or kind == "volume":
             raise MeshError(
-                f"{p}: no usable cells (only segments, which are usable only as a 2D surface "
-                "in the z = 0 plane)"
+                f"{p}: no usable cells (only segments, which are usable only as a 2D surface in the z = 0 plane)"
             )
         _check_indices(lines, points.shape[0], p, "segment")
         if validate:

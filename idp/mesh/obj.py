@@ -66,8 +66,7 @@ def read_obj(path: str | os.PathLike) -> SurfaceMesh:
                 elif k < 0:
                     if nv + k < 0:
                         raise _fail(
-                            p, lineno, f"relative index {k} refers before the first vertex "
-                            f"({nv} vertices read so far)"
+                            p, lineno, f"relative index {k} refers before the first vertex ({nv} vertices read so far)"
                         )
                     idx.append(nv + k)
                 else:
@@ -93,7 +92,8 @@ def read_obj(path: str | os.PathLike) -> SurfaceMesh:
     if bad.size:
         i = int(bad[0])
         raise _fail(
-            p, tri_line[i],
+            p,
+            tri_line[i],
             f"face index {int(faces[i].max()) + 1} out of range (file has {nv} vertices)",
         )
     return SurfaceMesh(

@@ -21,9 +21,7 @@ def _check_simplices(vertices: np.ndarray, elements: np.ndarray) -> tuple[np.nda
         raise MeshError(f"vertices must be an (n, 2) or (n, 3) array, got shape {v.shape}")
     d = v.shape[1]
     if e.ndim != 2 or e.shape[1] != d + 1:
-        raise MeshError(
-            f"elements must be an (m, {d + 1}) array for {d}D vertices, got shape {e.shape}"
-        )
+        raise MeshError(f"elements must be an (m, {d + 1}) array for {d}D vertices, got shape {e.shape}")
     return v, e.astype(np.int64, copy=False)
 
 
@@ -48,9 +46,7 @@ def inverted_elements(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return np.flatnonzero(signed_volumes(vertices, elements) <= 0.0).astype(np.int64)
 
 
-def degenerate_elements(
-    vertices: np.ndarray, elements: np.ndarray, rel_tol: float = 1e-12
-) -> np.ndarray:
+def degenerate_elements(vertices: np.ndarray, elements: np.ndarray, rel_tol: float = 1e-12) -> np.ndarray:
     """Indices (int64) of elements with ``|volume| <= rel_tol * mean |volume|``.
 
     The threshold is relative so the test does not depend on the mesh's units. When every

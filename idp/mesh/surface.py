@@ -28,13 +28,11 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if m == 0:
         return rows.reshape(0, k), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     base = int(rows.max()) + 1
-    if rows.min() >= 0 and base ** k < 2**62:
+    if rows.min() >= 0 and base**k < 2**62:
         key = np.zeros(m, dtype=np.int64)
         for j in range(k):  # k <= 3 columns, not a loop over elements
             key = key * base + rows[:, j]
-        _, first, inverse, counts = np.unique(
-            key, return_index=True, return_inverse=True, return_counts=True
-        )
+        _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
         return rows[first], inverse.reshape(-1), counts
     uniq, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     return uniq, inverse.reshape(-1), counts
@@ -133,9 +131,7 @@ def surface_topology(faces: np.ndarray, num_vertices: int) -> SurfaceTopology:
     """Boundary / non-manifold / orientation / component counts of a surface or polyline."""
     f = _as_index_array(faces, "faces", (2, 3))
     if f.size and (f.min() < 0 or f.max() >= num_vertices):
-        raise MeshError(
-            f"face indices must lie in [0, {num_vertices}), found range [{f.min()}, {f.max()}]"
-        )
+        raise MeshError(f"face indices must lie in [0, {num_vertices}), found range [{f.min()}, {f.max()}]")
     if f.shape[0] == 0:
         return SurfaceTopology(0, 0, 0, 0, 0, 0, False, True)
     half = _directed_edges(f)

@@ -210,7 +210,7 @@ class FrameWriter:
             _atomic_write_text(self.out_dir / "frames.pvd", self._pvd_text())
         self._closed = True
 
-    def __enter__(self) -> "FrameWriter":
+    def __enter__(self) -> FrameWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:

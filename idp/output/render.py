@@ -47,8 +47,9 @@ def _normals(tri: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def _feature_edges(faces: np.ndarray, normals: np.ndarray, back: np.ndarray,
-                   cos_max: float = math.cos(math.radians(10))) -> np.ndarray:
+def _feature_edges(
+    faces: np.ndarray, normals: np.ndarray, back: np.ndarray, cos_max: float = math.cos(math.radians(10))
+) -> np.ndarray:
     """Unique (e, 2) edges that are creases or borders and touch a back-facing triangle."""
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     uniq, inv, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)

@@ -132,9 +132,12 @@ class StatsRecorder:
     def _flush(self) -> None:
         steps = "[]" if not self._step_text else "[\n  " + ",\n  ".join(self._step_text) + "\n ]"
         text = (
-            '{\n "meta": ' + _indent(self._meta_text, " ")
-            + ',\n "steps": ' + steps
-            + ',\n "summary": ' + _indent(self._summary_text, " ")
+            '{\n "meta": '
+            + _indent(self._meta_text, " ")
+            + ',\n "steps": '
+            + steps
+            + ',\n "summary": '
+            + _indent(self._summary_text, " ")
             + "\n}\n"
         )
         tmp = self.path.with_name(self.path.name + ".tmp")

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from idp.contact.certificate import Certifier
 from idp.contact.model import ContactModel
-from idp.errors import IntersectingInputError, MeshError, SceneError
 from idp.energies.elastic import ElasticEnergy, lame_parameters
 from idp.energies.inertia import lumped_masses
+from idp.errors import IntersectingInputError, MeshError, SceneError
 from idp.mesh import generate as gen
 from idp.mesh.io import read_mesh
 from idp.mesh.placement import place, select_in_box
@@ -121,11 +120,15 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
             if sel.indices is not None:
                 idx = np.asarray(sel.indices, dtype=np.int64)
                 if idx.size and idx.max() >= n:
-                    raise SceneError(f"objects[{i}].fixed[{j}].indices: index {int(idx.max())} out of range (mesh has {n} vertices)")
+                    raise SceneError(
+                        f"objects[{i}].fixed[{j}].indices: index {int(idx.max())} out of range (mesh has {n} vertices)"
+                    )
                 pinned[idx] = True
             if sel.box is not None:
                 rel = (verts.min(axis=0), verts.max(axis=0)) if sel.relative else None
-                sel_idx = select_in_box(verts, np.asarray(sel.box[0], float), np.asarray(sel.box[1], float), relative_to=rel)
+                sel_idx = select_in_box(
+                    verts, np.asarray(sel.box[0], float), np.asarray(sel.box[1], float), relative_to=rel
+                )
                 if sel_idx.size == 0:
                     log.warning("objects[%d].fixed[%d]: the box selects no vertex", i, j)
                 pinned[sel_idx] = True
@@ -158,7 +161,9 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
     energies = []
     for obj, ids, elements, sched in bodies:
         mat = obj.material
-        el = ElasticEnergy(mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio, weight=getattr(mat, "weight", None))
+        el = ElasticEnergy(
+            mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio, weight=getattr(mat, "weight", None)
+        )
         masses += lumped_masses(N, elements, el.volumes, mat.density)
         energies.append(Body(obj.name, ids, el, sched))
     pinned = np.concatenate(fixed)
@@ -176,33 +181,63 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
     if c.enabled:
         preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
         contact = ContactModel(
-            x, all_surface, num_dynamic, dhat, ccd=c.ccd, broad_phase=c.broad_phase,
-            kappa=None if c.kappa == "auto" else float(c.kappa), adaptive_kappa=c.adaptive_kappa,
+            x,
+            all_surface,
+            num_dynamic,
+            dhat,
+            ccd=c.ccd,
+            broad_phase=c.broad_phase,
+            kappa=None if c.kappa == "auto" else float(c.kappa),
+            adaptive_kappa=c.adaptive_kappa,
             barrier=c.barrier,
         )
         ev = contact.evaluate(x)
         if ev.num_active and contact.min_distance(ev) <= 0.0:
-            raise IntersectingInputError("surfaces touch (zero distance) in the start state; separate them by a small gap")
+            raise IntersectingInputError(
+                "surfaces touch (zero distance) in the start state; separate them by a small gap"
+            )
     else:
         contact = None
 
-    meta = {"dhat": dhat, "dhat_mode": c.dhat_mode, "bbox_diagonal": diag, "cage_volume": cage_volume or None,
-            "num_vertices": N, "num_dynamic_vertices": num_dynamic,
-            "num_elements": int(sum(b.elastic.elements.shape[0] for b in energies)),
-            "num_surface_primitives": int(all_surface.shape[0]), "num_free_dofs": int(free_mask.sum()),
-            "input_intersecting_pairs": n_pairs}
+    meta = {
+        "dhat": dhat,
+        "dhat_mode": c.dhat_mode,
+        "bbox_diagonal": diag,
+        "cage_volume": cage_volume or None,
+        "num_vertices": N,
+        "num_dynamic_vertices": num_dynamic,
+        "num_elements": int(sum(b.elastic.elements.shape[0] for b in energies)),
+        "num_surface_primitives": int(all_surface.shape[0]),
+        "num_free_dofs": int(free_mask.sum()),
+        "input_intersecting_pairs": n_pairs,
+    }
     system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
     certifier = Certifier(
-        x, all_surface if c.enabled else None, system.elements,
-        distance_query=dhat, require_inversion_free=True, preserved_pairs=preserved,
+        x,
+        all_surface if c.enabled else None,
+        system.elements,
+        distance_query=dhat,
+        require_inversion_free=True,
+        preserved_pairs=preserved,
     )
     s = scene.solver
-    newton = NewtonSettings(tol=s.newton_tol, max_iterations=s.max_newton_iterations, inversion_eta=s.inversion_eta,
-                            check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate)
+    newton = NewtonSettings(
+        tol=s.newton_tol,
+        max_iterations=s.max_newton_iterations,
+        inversion_eta=s.inversion_eta,
+        check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,
+    )
     o, t = scene.output, scene.time
-    run = RunSettings(steps=steps or t.steps, stop_when_stationary=t.stop_when_stationary, stationary_tol=t.stationary_tol,
-                      write_every=o.every, write_obj=o.obj, write_vtu=o.vtu, write_png=o.png,
-                      on_nonconvergence=s.on_nonconvergence)
+    run = RunSettings(
+        steps=steps or t.steps,
+        stop_when_stationary=t.stop_when_stationary,
+        stationary_tol=t.stationary_tol,
+        write_every=o.every,
+        write_obj=o.obj,
+        write_vtu=o.vtu,
+        write_png=o.png,
+        on_nonconvergence=s.on_nonconvergence,
+    )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
 
 
@@ -229,8 +264,13 @@ def _input_intersections(x, surface, parts, dim, preserve: bool):
         kind = "triangle" if dim == 3 else "segment"
         shown = []
         for a, b in sorted(keys)[:5]:
-            shown.append("edge (" + ", ".join(_describe_vertex(v, parts) for v in a) + f") x {kind} ("
-                         + ", ".join(_describe_vertex(v, parts) for v in b) + ")")
+            shown.append(
+                "edge ("
+                + ", ".join(_describe_vertex(v, parts) for v in a)
+                + f") x {kind} ("
+                + ", ".join(_describe_vertex(v, parts) for v in b)
+                + ")"
+            )
         raise IntersectingInputError(
             f"the start state has {len(keys)} intersecting surface primitive pair(s) (object:vertex ids), e.g. "
             + "; ".join(shown)

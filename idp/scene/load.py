@@ -11,7 +11,7 @@ import sys
 import types
 import typing
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any, Union
 
 from pydantic import BaseModel, ValidationError
 
@@ -24,11 +24,11 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 __all__ = [
-    "load_scene",
-    "scene_from_dict",
-    "format_validation_error",
-    "resolved_scene_dict",
     "dump_scene_toml",
+    "format_validation_error",
+    "load_scene",
+    "resolved_scene_dict",
+    "scene_from_dict",
 ]
 
 
@@ -36,7 +36,7 @@ __all__ = [
 # Loading
 
 
-def load_scene(path: Union[str, Path]) -> Scene:
+def load_scene(path: str | Path) -> Scene:
     """Read a ``.toml`` or ``.json`` scene, validate it and resolve paths against its folder.
 
     The scene ``name`` defaults to the file stem.  Any problem raises :class:`SceneError`
@@ -60,9 +60,7 @@ def load_scene(path: Union[str, Path]) -> Scene:
         try:
             data = json.loads(text)
         except json.JSONDecodeError as err:
-            raise SceneError(
-                f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})"
-            ) from err
+            raise SceneError(f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})") from err
     if not isinstance(data, dict):
         raise SceneError(f"{p}: the top level must be a table/object (got {type(data).__name__})")
     if "name" not in data:
@@ -75,9 +73,7 @@ def _absolute(p: Path, base: Path) -> Path:
     return Path(os.path.normpath(p if p.is_absolute() else base / p))
 
 
-def scene_from_dict(
-    data: dict[str, Any], base_dir: Optional[Path] = None, *, source: str = "scene"
-) -> Scene:
+def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, source: str = "scene") -> Scene:
     """Validate a scene given as plain data (as parsed from TOML/JSON).
 
     Relative mesh paths are resolved against ``base_dir`` (or the working directory) and stored
@@ -127,12 +123,12 @@ def _is_model(tp: Any) -> bool:
     return isinstance(tp, type) and issubclass(tp, BaseModel)
 
 
-def _walk(root: Any, loc: tuple[Union[str, int], ...]) -> tuple[list[Union[str, int]], Any]:
+def _walk(root: Any, loc: tuple[str | int, ...]) -> tuple[list[str | int], Any]:
     """Turn a pydantic location into key-path parts (dropping union tags).
 
     Returns the parts and the model class in which the last key was looked up (or None).
     """
-    parts: list[Union[str, int]] = []
+    parts: list[str | int] = []
     tp: Any = root
     last_model: Any = None
     for item in loc:
@@ -151,7 +147,8 @@ def _walk(root: Any, loc: tuple[Union[str, int], ...]) -> tuple[list[Union[str, 
         members = [m for m in typing.get_args(tp) if _is_model(_unwrap(m))] if tp is not None else []
         if members:  # a discriminated-union tag such as 'ball'
             match = [
-                _unwrap(m) for m in members
+                _unwrap(m)
+                for m in members
                 if "shape" in _unwrap(m).model_fields and _unwrap(m).model_fields["shape"].default == item
             ]
             tp = match[0] if match else None
@@ -163,7 +160,7 @@ def _walk(root: Any, loc: tuple[Union[str, int], ...]) -> tuple[list[Union[str, 
     return parts, last_model
 
 
-def _path_str(parts: list[Union[str, int]]) -> str:
+def _path_str(parts: list[str | int]) -> str:
     out = ""
     for p in parts:
         out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
@@ -210,8 +207,12 @@ def _message(err: Any, last_model: Any, key: Any) -> str:
             if close:
                 hint = f" (did you mean '{close[0]}'?)"
         return f"unknown key{hint}"
-    bounds = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="),
-              "less_than": ("lt", "<"), "less_than_equal": ("le", "<=")}
+    bounds = {
+        "greater_than": ("gt", ">"),
+        "greater_than_equal": ("ge", ">="),
+        "less_than": ("lt", "<"),
+        "less_than_equal": ("le", "<="),
+    }
     if t in bounds:
         k, op = bounds[t]
         return f"must be {op} {_show(ctx.get(k))}{got}"

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Optional, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import (
     AfterValidator,
@@ -155,7 +155,7 @@ class ContactConfig(_Model):
     enabled: Bool = True
     dhat: PosFloat = 1e-3
     dhat_mode: Literal["absolute", "relative"] = "absolute"
-    kappa: Union[Literal["auto"], float] = "auto"
+    kappa: Literal["auto"] | float = "auto"
     adaptive_kappa: Bool = True
     ccd: Literal["additive", "tight_inclusion"] = "tight_inclusion"
     broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
@@ -195,15 +195,13 @@ class Material(_Model):
     youngs_modulus: PosFloat = 1e4
     poisson_ratio: Annotated[float, Strict(), Field(gt=-1)] = 0.4
     density: PosFloat = 1000.0
-    weight: Optional[PosFloat] = None
+    weight: PosFloat | None = None
 
     @field_validator("poisson_ratio")
     @classmethod
     def _nu(cls, v: float) -> float:
         if v >= 0.5:
-            raise ValueError(
-                f"must be < 0.5 (got {v}): incompressible materials (nu >= 0.5) are not supported"
-            )
+            raise ValueError(f"must be < 0.5 (got {v}): incompressible materials (nu >= 0.5) are not supported")
         return v
 
     @property
@@ -218,12 +216,12 @@ class Material(_Model):
         return self.youngs_modulus * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
 
     @model_validator(mode="after")
-    def _weight(self) -> "Material":
+    def _weight(self) -> Material:
         if self.model == "symmetric_dirichlet":
             if self.weight is None:
                 self.weight = self.mu / 4.0
         elif self.weight is not None:
-            raise rule_error([("weight", "only used by model = \"symmetric_dirichlet\"")])
+            raise rule_error([("weight", 'only used by model = "symmetric_dirichlet"')])
         return self
 
 
@@ -240,16 +238,20 @@ class RestShape(_Model):
         return _check_scale(v)
 
     @model_validator(mode="after")
-    def _growth(self) -> "RestShape":
+    def _growth(self) -> RestShape:
         if self.growth_steps == 0 and self.growth_rate != 0:
             raise rule_error([("growth_rate", "has no effect unless growth_steps >= 1")])
         final = 1.0 + self.growth_rate * self.growth_steps
         if final <= 0:
-            raise rule_error([(
-                "growth_rate",
-                f"makes the rest-shape factor 1 + growth_rate * growth_steps = {final:g} <= 0 "
-                f"(need growth_rate > {-1.0 / self.growth_steps:g} for growth_steps = {self.growth_steps})",
-            )])
+            raise rule_error(
+                [
+                    (
+                        "growth_rate",
+                        f"makes the rest-shape factor 1 + growth_rate * growth_steps = {final:g} <= 0 "
+                        f"(need growth_rate > {-1.0 / self.growth_steps:g} for growth_steps = {self.growth_steps})",
+                    )
+                ]
+            )
         return self
 
     def factor(self, step: int) -> float:
@@ -260,12 +262,12 @@ class RestShape(_Model):
 class FixedSelector(_Model):
     """Pins vertices selected by an axis-aligned box or by explicit indices."""
 
-    box: Optional[list[list[Float]]] = None
+    box: list[list[Float]] | None = None
     relative: Bool = False
-    indices: Optional[Annotated[list[NonNegInt], Field(min_length=1)]] = None
+    indices: Annotated[list[NonNegInt], Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
-    def _one(self) -> "FixedSelector":
+    def _one(self) -> FixedSelector:
         if (self.box is None) == (self.indices is None):
             raise rule_error([("", "give exactly one of `box` or `indices`")])
         if self.indices is not None and self.relative:
@@ -282,12 +284,12 @@ class FixedSelector(_Model):
 class Rotation(_Model):
     """Rotation about the origin; ``axis`` only in 3D (2D rotates in the plane)."""
 
-    axis: Optional[list[Float]] = None
+    axis: list[Float] | None = None
     degrees: Float
 
     @field_validator("axis")
     @classmethod
-    def _nonzero(cls, v: Optional[list[float]]) -> Optional[list[float]]:
+    def _nonzero(cls, v: list[float] | None) -> list[float] | None:
         if v is not None and not any(x != 0 for x in v):
             raise ValueError("must be non-zero")
         return v
@@ -342,7 +344,7 @@ class TetBoxGen(_Generator):
     resolution: Res3 = [4, 4, 4]
 
     @model_validator(mode="after")
-    def _box(self) -> "TetBoxGen":
+    def _box(self) -> TetBoxGen:
         if p := _check_box(self.lo, self.hi, strict=True):
             raise rule_error(p)
         return self
@@ -359,7 +361,7 @@ class BoxSurfaceGen(_Generator):
     resolution: PosInt = 4
 
     @model_validator(mode="after")
-    def _box(self) -> "BoxSurfaceGen":
+    def _box(self) -> BoxSurfaceGen:
         if p := _check_box(self.lo, self.hi, strict=True):
             raise rule_error(p)
         return self
@@ -379,7 +381,7 @@ class CylinderSurfaceGen(_Generator):
     cap_rings: PosInt = 3
 
     @model_validator(mode="after")
-    def _ys(self) -> "CylinderSurfaceGen":
+    def _ys(self) -> CylinderSurfaceGen:
         if self.y1 <= self.y0:
             raise rule_error([("y1", f"must be > y0 (got y0={self.y0}, y1={self.y1})")])
         return self
@@ -399,7 +401,7 @@ class HourglassSurfaceGen(_Generator):
     rings: PosInt = 48
 
     @model_validator(mode="after")
-    def _geom(self) -> "HourglassSurfaceGen":
+    def _geom(self) -> HourglassSurfaceGen:
         probs = []
         if self.neck_radius >= self.bulb_radius:
             probs.append(("neck_radius", f"must be < bulb_radius ({self.bulb_radius}) (got {self.neck_radius})"))
@@ -432,7 +434,7 @@ class RectangleGen(_Generator):
     resolution: Res2 = [4, 4]
 
     @model_validator(mode="after")
-    def _box(self) -> "RectangleGen":
+    def _box(self) -> RectangleGen:
         if p := _check_box(self.lo, self.hi, strict=True):
             raise rule_error(p)
         return self
@@ -460,7 +462,7 @@ class BoxPolygonGen(_Generator):
     resolution: PosInt = 4
 
     @model_validator(mode="after")
-    def _box(self) -> "BoxPolygonGen":
+    def _box(self) -> BoxPolygonGen:
         if p := _check_box(self.lo, self.hi, strict=True):
             raise rule_error(p)
         return self
@@ -469,17 +471,22 @@ class BoxPolygonGen(_Generator):
 GENERATORS: dict[str, type[_Generator]] = {
     cls.model_fields["shape"].default: cls
     for cls in (
-        BallGen, EllipsoidGen, TetBoxGen, BoxSurfaceGen, CylinderSurfaceGen, HourglassSurfaceGen,
-        DiskGen, RectangleGen, CirclePolygonGen, BoxPolygonGen,
+        BallGen,
+        EllipsoidGen,
+        TetBoxGen,
+        BoxSurfaceGen,
+        CylinderSurfaceGen,
+        HourglassSurfaceGen,
+        DiskGen,
+        RectangleGen,
+        CirclePolygonGen,
+        BoxPolygonGen,
     )
 }
 """Generator model per ``shape`` name."""
 
 Generate = Annotated[
-    Union[
-        BallGen, EllipsoidGen, TetBoxGen, BoxSurfaceGen, CylinderSurfaceGen, HourglassSurfaceGen,
-        DiskGen, RectangleGen, CirclePolygonGen, BoxPolygonGen,
-    ],
+    BallGen | EllipsoidGen | TetBoxGen | BoxSurfaceGen | CylinderSurfaceGen | HourglassSurfaceGen | DiskGen | RectangleGen | CirclePolygonGen | BoxPolygonGen,
     Field(discriminator="shape"),
 ]
 
@@ -497,13 +504,13 @@ class SceneObject(_Model):
 
     name: Name
     kind: Literal["deformable", "obstacle"] = "deformable"
-    mesh: Optional[Path] = None
-    generate: Optional[Generate] = None
+    mesh: Path | None = None
+    generate: Generate | None = None
     scale: Scale = 1.0
     rotate: list[Rotation] = Field(default_factory=list)
-    translate: Optional[list[Float]] = None  # filled with zeros (dim entries) by Scene
-    material: Optional[Material] = None  # filled with Material() for deformables
-    rest_shape: Optional[RestShape] = None  # filled with RestShape() for deformables
+    translate: list[Float] | None = None  # filled with zeros (dim entries) by Scene
+    material: Material | None = None  # filled with Material() for deformables
+    rest_shape: RestShape | None = None  # filled with RestShape() for deformables
     fixed: list[FixedSelector] = Field(default_factory=list)
 
     @field_validator("scale", mode="before")
@@ -512,7 +519,7 @@ class SceneObject(_Model):
         return _check_scale(v)
 
     @model_validator(mode="after")
-    def _rules(self) -> "SceneObject":
+    def _rules(self) -> SceneObject:
         probs: list[tuple[str, str]] = []
         if self.mesh is None and self.generate is None:
             probs.append(("mesh", "give exactly one of `mesh` (a file) or `generate` (a procedural shape)"))
@@ -529,11 +536,13 @@ class SceneObject(_Model):
             want = "volume" if self.kind == "deformable" else "surface"
             if gen.role != want:
                 what = "a volume mesh" if gen.role == "volume" else "a closed surface/polygon"
-                probs.append((
-                    "generate.shape",
-                    f"'{gen.shape}' makes {what}; {'a deformable' if want == 'volume' else 'an obstacle'} needs one of: "
-                    f"{_shapes(3, want)} (3D), {_shapes(2, want)} (2D)",
-                ))
+                probs.append(
+                    (
+                        "generate.shape",
+                        f"'{gen.shape}' makes {what}; {'a deformable' if want == 'volume' else 'an obstacle'} needs one of: "
+                        f"{_shapes(3, want)} (3D), {_shapes(2, want)} (2D)",
+                    )
+                )
         if probs:
             raise rule_error(probs)
         if self.kind == "deformable":
@@ -556,11 +565,11 @@ class Scene(_Model):
     objects: list[SceneObject]
 
     @model_validator(mode="after")
-    def _rules(self) -> "Scene":
+    def _rules(self) -> Scene:
         d = self.dim
         probs: list[tuple[str, str]] = []
 
-        def vec(path: str, v: Optional[list[float]]) -> None:
+        def vec(path: str, v: list[float] | None) -> None:
             if v is not None and len(v) != d:
                 probs.append((path, f"must have {d} entries for dim = {d} (got {len(v)})"))
 
@@ -588,10 +597,12 @@ class Scene(_Model):
                     vec(f"{p}.fixed[{j}].box[0]", sel.box[0])
                     vec(f"{p}.fixed[{j}].box[1]", sel.box[1])
             if ob.generate is not None and ob.generate.dim != d:
-                probs.append((
-                    f"{p}.generate.shape",
-                    f"'{ob.generate.shape}' is a {ob.generate.dim}D shape but dim = {d}",
-                ))
+                probs.append(
+                    (
+                        f"{p}.generate.shape",
+                        f"'{ob.generate.shape}' is a {ob.generate.dim}D shape but dim = {d}",
+                    )
+                )
         if not any(ob.kind == "deformable" for ob in self.objects):
             probs.append(("objects", "at least one deformable object is required"))
         if probs:
@@ -612,8 +623,17 @@ class Scene(_Model):
 MODELS: dict[str, type[BaseModel]] = {
     c.__name__: c
     for c in (
-        Scene, SceneObject, TimeConfig, SolverConfig, ContactConfig, OutputConfig, Material,
-        RestShape, FixedSelector, Rotation, *GENERATORS.values(),
+        Scene,
+        SceneObject,
+        TimeConfig,
+        SolverConfig,
+        ContactConfig,
+        OutputConfig,
+        Material,
+        RestShape,
+        FixedSelector,
+        Rotation,
+        *GENERATORS.values(),
     )
 }
 """Every scene model by class name (used to interpret error locations)."""

@@ -146,8 +146,8 @@ class FixedPatternAssembler:
         np.cumsum(np.bincount(unique_keys // n, minlength=n), out=self.indptr[1:])
         sizes = [d.shape[0] * d.shape[1] ** 2 for d in element_dofs]
         offsets = np.cumsum([0, *sizes])
-        self._element_scatter = [scatter[offsets[i]: offsets[i + 1]] for i in range(len(element_dofs))]
-        self._diag_scatter = scatter[offsets[-1]:]
+        self._element_scatter = [scatter[offsets[i] : offsets[i + 1]] for i in range(len(element_dofs))]
+        self._diag_scatter = scatter[offsets[-1] :]
 
     def start_data(self, diagonal: np.ndarray) -> np.ndarray:
         """A value array holding diag(``diagonal``); add element blocks with :meth:`add_element_blocks`
@@ -156,17 +156,20 @@ class FixedPatternAssembler:
         _scatter_add(data, self._diag_scatter, np.ascontiguousarray(diagonal, dtype=float), 1.0)
         return data
 
-    def add_element_blocks(self, data: np.ndarray, energy_index: int, first: int, blocks: np.ndarray, weight: float) -> None:
+    def add_element_blocks(
+        self, data: np.ndarray, energy_index: int, first: int, blocks: np.ndarray, weight: float
+    ) -> None:
         """Scatter ``blocks`` (g, k, k) of elements first … first+g−1 of energy ``energy_index``."""
         blocks = np.ascontiguousarray(blocks, dtype=float)
         if self._block_scatter is not None:
             base, stride = self._block_scatter[energy_index]
             g = blocks.shape[0]
-            _scatter_vertex_blocks(data, base[first: first + g], stride[first: first + g], blocks, float(weight),
-                                   self._scatter_bounds)
+            _scatter_vertex_blocks(
+                data, base[first : first + g], stride[first : first + g], blocks, float(weight), self._scatter_bounds
+            )
             return
         kk = blocks.shape[1] * blocks.shape[2]
-        idx = self._element_scatter[energy_index][first * kk: (first + blocks.shape[0]) * kk]
+        idx = self._element_scatter[energy_index][first * kk : (first + blocks.shape[0]) * kk]
         _scatter_add(data, idx, blocks.reshape(-1), float(weight))
 
     def finish_data(self, data: np.ndarray) -> np.ndarray:
@@ -206,7 +209,8 @@ class BlockLayout:
         self.indptr[-1] = self.nnz
         self.indices = np.empty(self.nnz, dtype=np.int32)
         self.indices[self.positions(np.arange(keys.size)).ravel()] = np.broadcast_to(
-            d * vcol[:, None, None] + a[None, None, :], (keys.size, d, d)).ravel()
+            d * vcol[:, None, None] + a[None, None, :], (keys.size, d, d)
+        ).ravel()
 
     def positions(self, blocks: np.ndarray) -> np.ndarray:
         """(len(blocks), d, d) CSR positions of the entries of the given block indices."""

@@ -27,8 +27,8 @@ fresh nested dissection costs 0.13 s. Couplings between far vertices are worse s
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 import cvxopt
 import numpy as np
@@ -65,9 +65,7 @@ class CholmodSolver(LinearSolver):
 
     name = "cholmod"
 
-    def __init__(
-        self, dofs_per_node: int = 3, use_metis: bool | None = None, reuse_ordering: bool = False
-    ) -> None:
+    def __init__(self, dofs_per_node: int = 3, use_metis: bool | None = None, reuse_ordering: bool = False) -> None:
         """``use_metis``: None = if pymetis imports; ``reuse_ordering``: keep the previous
         ordering when a changed pattern has the same size (off: see the module docstring)."""
         super().__init__(dofs_per_node)
@@ -174,9 +172,7 @@ class CholmodSolver(LinearSolver):
                 cholmod.numeric(self._S, self._F)
         except ArithmeticError as exc:
             col = exc.args[0] if exc.args else "?"
-            raise NotPositiveDefinite(
-                f"CHOLMOD: matrix is not positive definite (failed at column {col})"
-            ) from exc
+            raise NotPositiveDefinite(f"CHOLMOD: matrix is not positive definite (failed at column {col})") from exc
         finally:
             self.stats["numeric"] += time.perf_counter() - t0
         self._factored = True

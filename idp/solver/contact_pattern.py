@@ -27,7 +27,9 @@ from idp.solver.assembly import BlockLayout
 
 
 @numba.njit(cache=True)
-def _scatter_csc(cptr, crow, cval, dof_map, indptr, indices, out, missing_rows, missing_cols, missing_vals):  # pragma: no cover
+def _scatter_csc(
+    cptr, crow, cval, dof_map, indptr, indices, out, missing_rows, missing_cols, missing_vals
+):  # pragma: no cover
     """out[CSR position of (map[j], map[i])] += value of CSC entry (i, j), for a symmetric matrix whose CSC
     rows are sorted and ``dof_map`` is increasing on kept DOFs: one merge walk per column, no search.
     Entries whose position is absent are listed in missing_* (up to their length); returns their count."""
@@ -183,8 +185,8 @@ class GrowingBlockPattern:
         np.add.at(data, pos, sig)
         n = self.base.nfv * d
         self.fold_correction = sp.csr_matrix(
-            (np.concatenate([vals, -sig]), (np.concatenate([rows, drows]), np.concatenate([cols, drows]))),
-            shape=(n, n))
+            (np.concatenate([vals, -sig]), (np.concatenate([rows, drows]), np.concatenate([cols, drows]))), shape=(n, n)
+        )
         self._folded = (data, keys)
         self.folds += 1
         return True
@@ -260,8 +262,9 @@ class GrowingBlockPattern:
             r = np.arange(d)
             rows = np.broadcast_to((va[:, None, None] * d + r[None, :, None]), (c.size, d, d)).ravel()
             cols = np.broadcast_to((vb[:, None, None] * d + r[None, None, :]), (c.size, d, d)).ravel()
-            vals = blocks[c[:, None, None], (a * d)[:, None, None] + r[None, :, None],
-                          (b * d)[:, None, None] + r[None, None, :]].ravel()
+            vals = blocks[
+                c[:, None, None], (a * d)[:, None, None] + r[None, :, None], (b * d)[:, None, None] + r[None, None, :]
+            ].ravel()
             if not self._fold(data, rows, cols, vals):
                 bv = block_verts.astype(np.int64)
                 pa = np.broadcast_to(bv[:, :, None], (bv.shape[0], 4, 4))
@@ -297,5 +300,6 @@ def _embedding(small: BlockLayout, large: BlockLayout) -> np.ndarray:
     """Position in ``large`` of every CSR entry of ``small`` (whose couplings ``large`` contains)."""
     out = np.empty(small.nnz, dtype=np.int64)
     out[small.positions(np.arange(small.keys.size)).ravel()] = large.positions(
-        np.searchsorted(large.keys, small.keys)).ravel()
+        np.searchsorted(large.keys, small.keys)
+    ).ravel()
     return out

@@ -78,8 +78,9 @@ def _first_root(c3: float, c2: float, c1: float, c0: float) -> float:
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def _filter_kernel(x: np.ndarray, p: np.ndarray, elements: np.ndarray, eta: float,
-                   alpha: np.ndarray, vol0: np.ndarray) -> None:
+def _filter_kernel(
+    x: np.ndarray, p: np.ndarray, elements: np.ndarray, eta: float, alpha: np.ndarray, vol0: np.ndarray
+) -> None:
     """Per element: alpha (first root in (0,1] of det(Ds + s dDs) - eta det(Ds)) and det(Ds)."""
     m = elements.shape[0]
     d = x.shape[1]
@@ -117,13 +118,14 @@ def _filter_kernel(x: np.ndarray, p: np.ndarray, elements: np.ndarray, eta: floa
 @njit(cache=True)
 def _det3(C0: np.ndarray, C1: np.ndarray, C2: np.ndarray) -> float:
     """det of the 3x3 matrix whose columns 0, 1, 2 come from C0, C1, C2 respectively."""
-    return (C0[0, 0] * (C1[1, 1] * C2[2, 2] - C2[1, 2] * C1[2, 1])
-            - C1[0, 1] * (C0[1, 0] * C2[2, 2] - C2[1, 2] * C0[2, 0])
-            + C2[0, 2] * (C0[1, 0] * C1[2, 1] - C1[1, 1] * C0[2, 0]))
+    return (
+        C0[0, 0] * (C1[1, 1] * C2[2, 2] - C2[1, 2] * C1[2, 1])
+        - C1[0, 1] * (C0[1, 0] * C2[2, 2] - C2[1, 2] * C0[2, 0])
+        + C2[0, 2] * (C0[1, 0] * C1[2, 1] - C1[1, 1] * C0[2, 0])
+    )
 
 
-def max_inversion_free_step(x: np.ndarray, p: np.ndarray, elements: np.ndarray,
-                            eta: float = 0.1) -> float:
+def max_inversion_free_step(x: np.ndarray, p: np.ndarray, elements: np.ndarray, eta: float = 0.1) -> float:
     """Largest alpha in (0, 1] with every element's signed volume along x + s p staying
     > eta * (its volume at s = 0) for all s in [0, alpha); 1.0 if no element gets that small.
 
@@ -150,6 +152,8 @@ def max_inversion_free_step(x: np.ndarray, p: np.ndarray, elements: np.ndarray,
     bad = np.flatnonzero(~(vol0 > 0.0))
     if bad.size:
         t = int(bad[0])
-        raise ValueError(f"element {t} (vertices {elements[t].tolist()}) is not positively "
-                         f"oriented at the start of the step (det = {vol0[t]:.3e})")
+        raise ValueError(
+            f"element {t} (vertices {elements[t].tolist()}) is not positively "
+            f"oriented at the start of the step (det = {vol0[t]:.3e})"
+        )
     return float(min(alpha.min(), 1.0))

@@ -42,13 +42,13 @@ import scipy.sparse.linalg as spla
 from idp.errors import SolverError
 
 __all__ = [
-    "NotPositiveDefinite",
     "LinearSolver",
+    "NotPositiveDefinite",
     "ScipySolver",
     "available_solvers",
+    "have_pymetis",
     "make_linear_solver",
     "nested_dissection_ordering",
-    "have_pymetis",
 ]
 
 _BACKENDS: tuple[str, ...] = ("cholmod", "scipy")
@@ -132,9 +132,7 @@ def have_pymetis() -> bool:
     return True
 
 
-def vertex_graph(
-    indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node: int
-) -> tuple[np.ndarray, np.ndarray]:
+def vertex_graph(indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node: int) -> tuple[np.ndarray, np.ndarray]:
     """Adjacency ``(xadj, adjncy)`` of the vertex graph of a symmetric DOF pattern.
 
     Vertex ``v`` owns DOFs ``d*v .. d*v+d-1``; two vertices are adjacent when any of
@@ -157,9 +155,7 @@ def vertex_graph(
     return xadj, adjncy
 
 
-def nested_dissection_ordering(
-    indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node: int
-) -> np.ndarray:
+def nested_dissection_ordering(indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node: int) -> np.ndarray:
     """Fill-reducing DOF permutation from METIS nested dissection of the vertex graph.
 
     Returns ``p`` (int64, length n) with the meaning of CHOLMOD's ``p``: the factorised

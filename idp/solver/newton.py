@@ -48,11 +48,11 @@ class NewtonResult:
     hit_iteration_cap: bool = False
     line_search_failed: bool = False
     decrement: float = float("inf")
-    alphas: list = field(default_factory=list)          # accepted step sizes
-    ccd_alphas: list = field(default_factory=list)      # CCD bound per iteration (1 = not limiting)
+    alphas: list = field(default_factory=list)  # accepted step sizes
+    ccd_alphas: list = field(default_factory=list)  # CCD bound per iteration (1 = not limiting)
     inversion_alphas: list = field(default_factory=list)
     gradient_descent_fallbacks: int = 0
-    pcg_iterations: int = 0          # CG iterations spent on exact directions after folded matrices
+    pcg_iterations: int = 0  # CG iterations spent on exact directions after folded matrices
     exact_refactorizations: int = 0  # ... and factorisations where CG did not converge
     num_contacts: int = 0
     kappa: float = 0.0
@@ -64,8 +64,16 @@ class NewtonResult:
     # factorisations, solves, CG), ccd (continuous collision detection), line_search (inversion filter and
     # trial energies), contact_build (broad phase and collision sets, also those of the line search),
     # check (per-iterate certificates)
-    timings: dict = field(default_factory=lambda: {"assembly": 0.0, "linear_solve": 0.0, "ccd": 0.0, "line_search": 0.0,
-                                                   "contact_build": 0.0, "check": 0.0})
+    timings: dict = field(
+        default_factory=lambda: {
+            "assembly": 0.0,
+            "linear_solve": 0.0,
+            "ccd": 0.0,
+            "line_search": 0.0,
+            "contact_build": 0.0,
+            "check": 0.0,
+        }
+    )
 
 
 class StepSolver:
@@ -195,8 +203,9 @@ class StepSolver:
         K = s.contact_pattern.fold_correction
         t = time.perf_counter()
         try:
-            p, its, ok = pcg_from_majorant(lambda v: M @ v + K @ v, self.linear.solve, -g, p_folded,
-                                           cfg.pcg_rtol, cfg.pcg_max_iterations)
+            p, its, ok = pcg_from_majorant(
+                lambda v: M @ v + K @ v, self.linear.solve, -g, p_folded, cfg.pcg_rtol, cfg.pcg_max_iterations
+            )
         except SolverError:  # no usable factor of M (its direction was a gradient-descent fallback)
             its, ok = 0, False
         res.timings["linear_solve"] += time.perf_counter() - t
@@ -224,7 +233,9 @@ class StepSolver:
         prev_min_d = s.contact.min_distance(ev) if ev is not None else math.inf
         energy, el, bar = self._energy(x, x_prev, ev)
         if not math.isfinite(energy):
-            raise SolverError("step energy is not finite at the start of the step (inverted element or contact at zero distance)")
+            raise SolverError(
+                "step energy is not finite at the start of the step (inverted element or contact at zero distance)"
+            )
 
         for it in range(1, cfg.max_iterations + 1):
             res.iterations = it

@@ -10,7 +10,7 @@ decreases from that of M⁻¹b, which is negative because M ⪰ H).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

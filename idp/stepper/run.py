@@ -51,9 +51,13 @@ class RunResult:
 def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
     """Write the finished state atomically (temp file + rename): an interruption never leaves a torn file."""
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, x=x, step=step,
-             kappa=system.contact.kappa if system.contact else 0.0,
-             kappa_max=system.contact.kappa_max if system.contact else 0.0)
+    np.savez(
+        tmp,
+        x=x,
+        step=step,
+        kappa=system.contact.kappa if system.contact else 0.0,
+        kappa_max=system.contact.kappa_max if system.contact else 0.0,
+    )
     tmp.replace(path)
 
 
@@ -77,8 +81,14 @@ def run_simulation(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    writer = FrameWriter(out, system.parts, system.dim, write_obj=settings.write_obj, write_vtu=settings.write_vtu,
-                         fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1))
+    writer = FrameWriter(
+        out,
+        system.parts,
+        system.dim,
+        write_obj=settings.write_obj,
+        write_vtu=settings.write_vtu,
+        fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1),
+    )
     stats = StatsRecorder(out / "stats.json", meta)
     solver = StepSolver(system, newton, linear, certifier=certifier)
     checkpoint = out / "checkpoint.npz"
@@ -87,7 +97,9 @@ def run_simulation(
     if settings.resume and checkpoint.exists():
         ck = np.load(checkpoint)
         if ck["x"].shape != system.x.shape:
-            raise SolverError(f"checkpoint {checkpoint} does not match this scene (shape {ck['x'].shape} vs {system.x.shape})")
+            raise SolverError(
+                f"checkpoint {checkpoint} does not match this scene (shape {ck['x'].shape} vs {system.x.shape})"
+            )
         system.x = ck["x"].copy()
         start_step = int(ck["step"])
         if system.contact is not None:
@@ -211,7 +223,9 @@ def run_simulation(
         "dhat": system.meta.get("dhat"),
         "initial_fill_fraction": fill0,
         "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),
-        "timings": {k: float(sum(r["timings"].get(k, 0.0) for r in records)) for k in (records[0]["timings"] if records else {})},
+        "timings": {
+            k: float(sum(r["timings"].get(k, 0.0) for r in records)) for k in (records[0]["timings"] if records else {})
+        },
         "linear_solver": getattr(linear, "stats", {}),
     }
     stats.set_summary(summary)
@@ -219,7 +233,12 @@ def run_simulation(
         try:
             from idp.output.render import render_frames_png
 
-            render_frames_png(out / "frames.png", system.parts, [(f"step {start_step}", x0), (f"step {summary['last_step']}", x)], dim=system.dim)
+            render_frames_png(
+                out / "frames.png",
+                system.parts,
+                [(f"step {start_step}", x0), (f"step {summary['last_step']}", x)],
+                dim=system.dim,
+            )
         except Exception as exc:  # a picture must never lose a finished run
             log.warning("could not render frames.png: %s", exc)
     if stopped_reason.startswith("interrupted"):

@@ -42,9 +42,9 @@ class System:
     """Everything one artificial time step needs (paper eq. 6)."""
 
     dim: int
-    x: np.ndarray                    # (n, d) current positions, deformables first then obstacles
-    masses: np.ndarray               # (n,) lumped masses (0 on obstacle vertices)
-    free_mask: np.ndarray            # (n*d,) True where the DOF is optimised
+    x: np.ndarray  # (n, d) current positions, deformables first then obstacles
+    masses: np.ndarray  # (n,) lumped masses (0 on obstacle vertices)
+    free_mask: np.ndarray  # (n*d,) True where the DOF is optimised
     bodies: list[Body]
     parts: list[Part]
     h: float
@@ -55,7 +55,9 @@ class System:
     def __post_init__(self):
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
-        self.assembler = FixedPatternAssembler([b.elastic.element_dofs() for b in self.bodies], self.dof_map, dim=self.dim)
+        self.assembler = FixedPatternAssembler(
+            [b.elastic.element_dofs() for b in self.bodies], self.dof_map, dim=self.dim
+        )
         self.contact_pattern = None
         if self.contact is not None:
             self.collision_dofs = self.contact.collision_dofs()

@@ -8,8 +8,19 @@ from idp.cli import main
 def test_bench_tiny_scene_writes_json_table_and_plots(tmp_path, capsys):
     assert main(["bench", "--only", "tiny", "-o", str(tmp_path)]) == 0
     res = json.loads((tmp_path / "tiny.json").read_text())
-    for key in ("vertices", "tets", "steps", "wall_total", "wall_process", "newton_iterations", "newton_per_step",
-                "per_iteration_split", "peak_rss_mb", "fill_final", "certified_frames"):
+    for key in (
+        "vertices",
+        "tets",
+        "steps",
+        "wall_total",
+        "wall_process",
+        "newton_iterations",
+        "newton_per_step",
+        "per_iteration_split",
+        "peak_rss_mb",
+        "fill_final",
+        "certified_frames",
+    ):
         assert key in res
     assert res["steps"] == 3 and res["uncertified_frames"] == 0 and res["certified_frames"] == 3
     assert res["peak_rss_mb"] > 10

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import matplotlib.image as mpimg
 import meshio
-import pytest
 
 from idp.cli import main
 from idp.mesh.generate import tet_ball
@@ -61,7 +60,18 @@ def test_run_writes_every_output(tmp_path, capsys):
     stats = json.loads((out / "stats.json").read_text())
     assert stats["summary"]["all_certified"] is True and len(stats["steps"]) == 4
     step = stats["steps"][-1]
-    for key in ("wall_time", "newton_iterations", "alphas", "ccd_alphas", "contacts", "kappa", "energy", "min_distance", "certificate", "timings"):
+    for key in (
+        "wall_time",
+        "newton_iterations",
+        "alphas",
+        "ccd_alphas",
+        "contacts",
+        "kappa",
+        "energy",
+        "min_distance",
+        "certificate",
+        "timings",
+    ):
         assert key in step
     assert stats["meta"]["dhat"] > 0  # the resolved absolute d̂ is saved
     img = mpimg.imread(out / "frames.png")

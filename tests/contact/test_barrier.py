@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from idp.contact.model import ContactModel
-from idp.mesh.generate import box_surface, polygon_box, tet_box
+from idp.mesh.generate import polygon_box, tet_box
 from idp.mesh.surface import boundary_faces
 
 
@@ -81,7 +81,7 @@ def test_ccd_stops_a_step_that_would_pass_through():
     x, surf, n_dyn = two_boxes(0.05, rng)
     cm = ContactModel(x, surf, n_dyn, dhat=0.01)
     y = x.copy()
-    y[n_dyn // 2:, 2] -= 0.5  # the upper box moves down through the lower one
+    y[n_dyn // 2 :, 2] -= 0.5  # the upper box moves down through the lower one
     alpha = cm.max_collision_free_step(x, y)
     assert 0 < alpha < 0.1
     assert not cm.has_intersections(x + alpha * (y - x))
@@ -119,7 +119,7 @@ def test_swept_candidates_give_the_same_collision_sets_along_the_segment():
     x, surf, n_dyn = two_boxes(0.05, rng)
     cm = ContactModel(x, surf, n_dyn, dhat=0.02, kappa=1.0)
     y = x.copy()
-    y[n_dyn // 2:, 2] -= 0.04
+    y[n_dyn // 2 :, 2] -= 0.04
     cand = cm.sweep_candidates(x, y)
     assert cm.max_collision_free_step(x, y, cand) == pytest.approx(cm.max_collision_free_step(x, y), rel=1e-6)
     for a in (0.0, 0.3, 0.7, 1.0):
@@ -134,7 +134,7 @@ def test_tight_inclusion_falls_back_to_additive_ccd_when_nearly_touching():
     x, surf, n_dyn = two_boxes(0.05, rng)
     cm = ContactModel(x, surf, n_dyn, dhat=0.01, ccd="tight_inclusion")
     y = x.copy()
-    y[n_dyn // 2:, 2] -= 0.5
+    y[n_dyn // 2 :, 2] -= 0.5
     a_ti = cm.max_collision_free_step(x, y)
     assert cm.ccd_fallbacks == 0 and 0 < a_ti < 0.1
     a_fb = cm.max_collision_free_step(x, y, current_min_distance=1e-12)

@@ -10,7 +10,6 @@ from idp.contact._broad_phase import surface_candidates
 from idp.mesh.generate import box_surface, tet_ball
 from idp.mesh.surface import boundary_faces
 
-
 # ----------------------------------------------------------------------------- scenes
 
 
@@ -242,16 +241,14 @@ def test_exclusions():
     sfv, see = _as_sets(fv, ee)
     near = {(0, 1), (1, 0), (1, 2), (2, 1)}
     assert sfv == {(f, v) for f in range(3) for v in range(9) if (f, v // 3) in near}
-    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9)
-                   if (tri_of_edge[a], tri_of_edge[b]) in near}
+    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9) if (tri_of_edge[a], tri_of_edge[b]) in near}
     assert (sfv, see) == brute_force(V, None, E, F, 0.07, 9)
 
     # only A dynamic: the B-C pairs are all static and go, the A-B pairs stay
     fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=3)
     sfv, see = _as_sets(fv, ee)
     assert sfv == {(0, v) for v in range(3, 6)} | {(1, v) for v in range(3)}
-    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9)
-                   if {tri_of_edge[a], tri_of_edge[b]} == {0, 1}}
+    assert see == {(a, b) for a in range(9) for b in range(a + 1, 9) if {tri_of_edge[a], tri_of_edge[b]} == {0, 1}}
 
     # one dynamic vertex (0): faces B, C and vertices 1.. are static, face A is not
     fv, ee = surface_candidates(V, None, E, F, 0.07, num_dynamic=1)

@@ -146,8 +146,16 @@ def test_psd_input_is_returned_unchanged(k):
     fam = families(rng, k, 20)
     g = rng.standard_normal((20, k))
     g[:, ::2] = 0.0  # normals with exact zeros
-    As = np.concatenate([fam["pd"], fam["rank1_psd"], fam["rank2_psd"],
-                         g[:, :, None] * g[:, None, :], np.zeros((1, k, k)), np.eye(k)[None]])
+    As = np.concatenate(
+        [
+            fam["pd"],
+            fam["rank1_psd"],
+            fam["rank2_psd"],
+            g[:, :, None] * g[:, None, :],
+            np.zeros((1, k, k)),
+            np.eye(k)[None],
+        ]
+    )
     assert np.array_equal(project_stack(As), As)
 
 
@@ -178,7 +186,8 @@ def special_matrices(k: int) -> list[np.ndarray]:
         1e-300 * rand_sym(rng, 1, k)[0],  # tiny scale
         1e300 * rand_sym(rng, 1, k)[0],  # huge scale
         np.kron(np.eye(k // 3), np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, -1.0]]))
-        if k % 3 == 0 else np.eye(k),
+        if k % 3 == 0
+        else np.eye(k),
     ]
     A = rand_sym(rng, 1, k)[0]
     A[np.abs(A) < 1.0] = 0.0  # sparse pattern: exact zeros inside the reduction
@@ -287,4 +296,4 @@ def test_called_from_njit_loop():
     _project_all(Hs, ks)
     np.testing.assert_array_equal(Hs, expected)
     for n, k in enumerate(ks[:50]):
-        check(inputs[n:n + 1, :k, :k], Hs[n:n + 1, :k, :k])
+        check(inputs[n : n + 1, :k, :k], Hs[n : n + 1, :k, :k])

@@ -5,7 +5,9 @@ import pytest
 from idp.bench.data import find_data_dir
 
 DATA = find_data_dir()
-pytestmark = pytest.mark.skipif(DATA is None, reason="the paper's data was not found: set IDP_DATA (e.g. ../shared/data)")
+pytestmark = pytest.mark.skipif(
+    DATA is None, reason="the paper's data was not found: set IDP_DATA (e.g. ../shared/data)"
+)
 
 
 def test_obj_files_meshio_rejects_are_read():

@@ -184,11 +184,19 @@ def _dP_dF(model: str, F: np.ndarray, mu: float, lam: float, w: float) -> np.nda
 def _F_cases(d: int, rng: np.random.Generator) -> list[np.ndarray]:
     R1, R2 = _rotation(d, rng), _rotation(d, rng)
     if d == 3:
-        sigmas = [[1, 1, 1], [2.0, 2.0, 0.5], [1.5, 0.4, 0.4], [0.7, 0.7, 0.7], [2.5, 1.1, 0.3],
-                  [1.3, 1.3 + 1e-9, 0.8], [0.05, 0.05, 0.05], [4.0, 0.2, 0.1], [2.5, 2.5, 1.3]]
+        sigmas = [
+            [1, 1, 1],
+            [2.0, 2.0, 0.5],
+            [1.5, 0.4, 0.4],
+            [0.7, 0.7, 0.7],
+            [2.5, 1.1, 0.3],
+            [1.3, 1.3 + 1e-9, 0.8],
+            [0.05, 0.05, 0.05],
+            [4.0, 0.2, 0.1],
+            [2.5, 2.5, 1.3],
+        ]
     else:
-        sigmas = [[1, 1], [2.0, 2.0], [0.3, 0.3], [2.5, 0.3], [1.3, 1.3 + 1e-9], [4.0, 0.1],
-                  [3.0, 2.8]]
+        sigmas = [[1, 1], [2.0, 2.0], [0.3, 0.3], [2.5, 0.3], [1.3, 1.3 + 1e-9], [4.0, 0.1], [3.0, 2.8]]
     out = [np.eye(d)]
     for s in sigmas:
         out.append(R1 @ np.diag(s) @ R2.T)
@@ -277,10 +285,11 @@ def test_per_element_materials_add_up() -> None:
     Ey = np.where(np.arange(len(T)) % 2 == 0, 1e3, 1e5)
     nu = np.where(np.arange(len(T)) % 3 == 0, 0.45, 0.2)
     E = ElasticEnergy("neo_hookean", X, T, Ey, nu)
-    parts = [ElasticEnergy("neo_hookean", X, T[i:i + 1], Ey[i], nu[i]) for i in range(len(T))]
+    parts = [ElasticEnergy("neo_hookean", X, T[i : i + 1], Ey[i], nu[i]) for i in range(len(T))]
     assert E.value(x) == pytest.approx(sum(p.value(x) for p in parts), rel=1e-12)
-    np.testing.assert_allclose(E.gradient(x), sum(p.gradient(x) for p in parts), rtol=1e-10,
-                               atol=1e-10 * np.abs(E.gradient(x)).max())
+    np.testing.assert_allclose(
+        E.gradient(x), sum(p.gradient(x) for p in parts), rtol=1e-10, atol=1e-10 * np.abs(E.gradient(x)).max()
+    )
     # symmetric Dirichlet default weight = mu/4 (matches NH small-strain shear stiffness)
     S = ElasticEnergy("symmetric_dirichlet", X, T, Ey, nu)
     np.testing.assert_allclose(S.weight, E.mu / 4)
@@ -319,10 +328,12 @@ def test_kernel_matches_numpy_reference(model: str, d: int) -> None:
             for project in (True, False):
                 k = (d + 1) * d
                 e, g, H = np.empty(m), np.empty((m, k)), np.empty((m, k, k))
-                K.element_terms(x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb,
-                                True, True, project, e, g, H)
-                er, gr, Hr = K.element_terms_reference(x, E.elements, E.Dm_inv, E.volumes,
-                                                       E._model_id, E._pa, E._pb, project)
+                K.element_terms(
+                    x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb, True, True, project, e, g, H
+                )
+                er, gr, Hr = K.element_terms_reference(
+                    x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb, project
+                )
                 np.testing.assert_allclose(e, er, rtol=1e-12, atol=1e-12 * np.abs(er).max())
                 scale_g = np.abs(gr).max(axis=1)[:, None]
                 assert np.all(np.abs(g - gr) <= 1e-12 * scale_g)

@@ -80,9 +80,7 @@ def test_large_file_is_fast(tmp_path):
     rng = np.random.default_rng(0)
     v = rng.random((n, 3))
     f = rng.integers(1, n + 1, size=(2 * n, 3))
-    text = "".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(
-        f"f {a}/1/1 {b}/1/1 {c}/1/1\n" for a, b, c in f
-    )
+    text = "".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a}/1/1 {b}/1/1 {c}/1/1\n" for a, b, c in f)
     p = _write(tmp_path, text)
     t0 = time.perf_counter()
     mesh = read_obj(p)

@@ -137,8 +137,11 @@ def test_pvd_default_timestep_and_rewrite(tmp_path: Path) -> None:
     for k in (0, 10, 20):
         assert set(w.write(k, x0)) == {"vtu", "pvd"}
     w.write(10, x0 + 1.0)  # rewriting a frame replaces its entry
-    assert read_pvd(tmp_path / "frames.pvd") == [(0.0, "vtu/frame_00000.vtu"), (10.0, "vtu/frame_00010.vtu"),
-                                                 (20.0, "vtu/frame_00020.vtu")]
+    assert read_pvd(tmp_path / "frames.pvd") == [
+        (0.0, "vtu/frame_00000.vtu"),
+        (10.0, "vtu/frame_00010.vtu"),
+        (20.0, "vtu/frame_00020.vtu"),
+    ]
     assert not (tmp_path / "obj").exists()
 
 

@@ -61,7 +61,7 @@ def test_outward_fixture() -> None:
 def test_render_3d(tmp_path: Path) -> None:
     x, parts = ball_in_cage(2)
     x1 = x.copy()
-    x1[: -8, 2] *= 0.5
+    x1[:-8, 2] *= 0.5
     out = tmp_path / "r3.png"
     render_frames_png(out, parts, [("step 0", x), ("step 60", x1)], dim=3, size=(640, 320))
     img = _check_png(out, (640, 320))

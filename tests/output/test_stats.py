@@ -21,9 +21,17 @@ class _Cfg:
 
 def test_to_jsonable_types() -> None:
     obj = {
-        "i": np.int64(3), "f": np.float32(0.5), "b": np.bool_(True), "inf": np.inf, "ninf": -math.inf,
-        "nan": float("nan"), "arr": np.array([[1.0, np.inf], [np.nan, -np.inf]]), "iarr": np.arange(3, dtype=np.int32),
-        "path": Path("a/b.msh"), "cfg": _Cfg(1e-3, Path("m.msh"), np.array([1, 2])), "tup": (1, np.float64(2.0)),
+        "i": np.int64(3),
+        "f": np.float32(0.5),
+        "b": np.bool_(True),
+        "inf": np.inf,
+        "ninf": -math.inf,
+        "nan": float("nan"),
+        "arr": np.array([[1.0, np.inf], [np.nan, -np.inf]]),
+        "iarr": np.arange(3, dtype=np.int32),
+        "path": Path("a/b.msh"),
+        "cfg": _Cfg(1e-3, Path("m.msh"), np.array([1, 2])),
+        "tup": (1, np.float64(2.0)),
         7: "int key",
     }
     out = to_jsonable(obj)
@@ -44,8 +52,14 @@ def test_recorder_roundtrip_and_crash(tmp_path: Path) -> None:
     rec = StatsRecorder(path, {"scene": Path("s.toml"), "n_vertices": np.int64(100)})
     assert load_stats(path) == {"meta": {"scene": "s.toml", "n_vertices": 100}, "steps": [], "summary": None}
     for k in range(5):
-        rec.add_step({"step": np.int64(k), "energy": np.float64(1.5 * k), "toi": np.inf if k % 2 else 0.25,
-                      "res": np.array([1e-3, np.nan])})
+        rec.add_step(
+            {
+                "step": np.int64(k),
+                "energy": np.float64(1.5 * k),
+                "toi": np.inf if k % 2 else 0.25,
+                "res": np.array([1e-3, np.nan]),
+            }
+        )
         # simulated crash after each step: whatever is on disk is complete, strict JSON
         raw = json.loads(path.read_text(), parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
         assert len(raw["steps"]) == k + 1 and raw["summary"] is None

@@ -46,7 +46,7 @@ def test_vertex_block_pattern_matches_dof_pattern(dim):
     Hb = block_asm.assemble([blocks], [0.7], diag)
     Hg = generic.assemble([blocks], [0.7], diag)
     assert np.allclose(Hb.toarray(), Hg.toarray())
-    assert Hb.has_sorted_indices or np.all(np.diff(Hb.indices[Hb.indptr[0]:Hb.indptr[1]]) > 0)
+    assert Hb.has_sorted_indices or np.all(np.diff(Hb.indices[Hb.indptr[0] : Hb.indptr[1]]) > 0)
     Hs = Hb.copy()
     Hs.sort_indices()
     assert np.array_equal(Hs.indices, Hb.indices)  # already sorted: CHOLMOD gets canonical CSR

@@ -61,8 +61,9 @@ def test_grown_pattern_gives_the_exact_matrix_and_keeps_arrays_while_unchanged()
 def test_csr_is_canonical_for_the_solver():
     rng, dmap, asm, blocks, diag = _chain_problem()
     pattern = GrowingBlockPattern(asm.layout, fold_limit=0)
-    M = pattern.assemble(asm.assemble_data([blocks], [1.0], diag), _pair_hessian(rng, [3, 12, 13, 14], 24),
-                         dmap.global_to_free)
+    M = pattern.assemble(
+        asm.assemble_data([blocks], [1.0], diag), _pair_hessian(rng, [3, 12, 13, 14], 24), dmap.global_to_free
+    )
     S = M.copy()
     S.sort_indices()
     assert np.array_equal(S.indices, M.indices)
@@ -86,7 +87,7 @@ def test_folded_couplings_give_a_positive_definite_majorant(seed):
     # only the blocks of vertices in the missing couplings change
     touched = np.zeros(dmap.num_free, dtype=bool)
     for v in (2, 15, 16, 17):
-        touched[dmap.global_to_free[v * DIM: v * DIM + DIM]] = True
+        touched[dmap.global_to_free[v * DIM : v * DIM + DIM]] = True
     assert np.allclose(gap[~touched][:, ~touched], 0)
 
 
@@ -153,7 +154,7 @@ def _collision_blocks(rng, groups, dmap, nv, scale=10.0):
         k = len(kept) * DIM
         B = rng.standard_normal((2, k))
         local = scale * B.T @ B
-        block_verts[c, :len(kept)] = [dmap.global_to_free[v * DIM] // DIM for v in kept]
+        block_verts[c, : len(kept)] = [dmap.global_to_free[v * DIM] // DIM for v in kept]
         blocks[c, :k, :k] = local
         idx = (np.asarray(kept)[:, None] * DIM + np.arange(DIM)).ravel()
         r, cc = np.meshgrid(idx, idx, indexing="ij")

@@ -146,9 +146,7 @@ def test_refactor_same_pattern_reuses_analysis(backend: str, A0: sp.csr_matrix) 
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_changed_pattern_triggers_new_analysis(
-    backend: str, A0: sp.csr_matrix, A0_contact: sp.csr_matrix
-) -> None:
+def test_changed_pattern_triggers_new_analysis(backend: str, A0: sp.csr_matrix, A0_contact: sp.csr_matrix) -> None:
     assert A0_contact.nnz > A0.nnz
     s = new_solver(backend)
     b = np.random.default_rng(3).standard_normal(A0.shape[0])
@@ -351,7 +349,9 @@ def test_cholmod_reuse_ordering_option(A0: sp.csr_matrix, A0_contact: sp.csr_mat
     assert not np.array_equal(d._perm, q0)
 
 
-def test_cholmod_couplings_that_come_and_go_reuse_the_union_analysis(A0: sp.csr_matrix, A0_contact: sp.csr_matrix) -> None:
+def test_cholmod_couplings_that_come_and_go_reuse_the_union_analysis(
+    A0: sp.csr_matrix, A0_contact: sp.csr_matrix
+) -> None:
     """Contacts appearing and disappearing: after the union is analysed, no further analysis is needed."""
     pytest.importorskip("cvxopt")
     s = _cholmod_solver(3)

@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from test_contact_pattern import _chain_problem, _pair_hessian, _reference
 
 from idp.solver.contact_pattern import GrowingBlockPattern
 from idp.solver.pcg import pcg_from_majorant
-
-from test_contact_pattern import _chain_problem, _pair_hessian, _reference
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -63,8 +62,11 @@ def test_newton_exact_direction_after_a_fold(backend, cap):
     C = _pair_hessian(rng, [2, 15, 16, 17], 24, scale=1e3)
     M = pattern.assemble(asm.assemble_data([blocks], [1.0], diag), C, dmap.global_to_free)
     assert pattern.last_folded
-    solver = StepSolver(SimpleNamespace(contact_pattern=pattern), NewtonSettings(pcg_rtol=1e-10, pcg_max_iterations=cap),
-                        make_linear_solver(backend))
+    solver = StepSolver(
+        SimpleNamespace(contact_pattern=pattern),
+        NewtonSettings(pcg_rtol=1e-10, pcg_max_iterations=cap),
+        make_linear_solver(backend),
+    )
     res = NewtonResult()
     g = rng.standard_normal(M.shape[0])
     p_folded = solver._direction(M, g, res)

@@ -8,8 +8,6 @@ import pytest
 from idp.api import simulate
 from idp.contact.intersections import surface_intersecting_pairs
 from idp.errors import IntersectingInputError, SolverError
-from idp.mesh.quality import signed_volumes
-from idp.output.stats import load_stats
 from idp.scene.load import scene_from_dict
 
 
@@ -41,10 +39,21 @@ def check_every_frame(result):
 
 
 def test_ball_grown_inside_a_box_touches_walls_and_stays_injective(tmp_path):
-    s = scene([
-        {"name": "ball", "generate": {"shape": "ball", "radius": 0.35, "resolution": 3}, "rest_shape": grow(0.2, 6)},
-        {"name": "box", "kind": "obstacle", "generate": {"shape": "box_surface", "lo": [-0.5] * 3, "hi": [0.5] * 3, "resolution": 3}},
-    ], steps=8)
+    s = scene(
+        [
+            {
+                "name": "ball",
+                "generate": {"shape": "ball", "radius": 0.35, "resolution": 3},
+                "rest_shape": grow(0.2, 6),
+            },
+            {
+                "name": "box",
+                "kind": "obstacle",
+                "generate": {"shape": "box_surface", "lo": [-0.5] * 3, "hi": [0.5] * 3, "resolution": 3},
+            },
+        ],
+        steps=8,
+    )
     res = simulate(s, tmp_path, progress=False)
     recs = check_every_frame(res)
     assert max(r["contacts"] for r in recs) > 0, "the scene was meant to collide"
@@ -57,13 +66,42 @@ def test_ball_grown_inside_a_box_touches_walls_and_stays_injective(tmp_path):
 
 
 def test_two_blocks_pressed_together_every_iterate_certified(tmp_path):
-    s = scene([
-        {"name": "left", "generate": {"shape": "tet_box", "lo": [-0.45, -0.2, -0.2], "hi": [-0.02, 0.2, 0.2], "resolution": [3, 3, 3]},
-         "rest_shape": grow(0.15, 5)},
-        {"name": "right", "generate": {"shape": "tet_box", "lo": [0.02, -0.2, -0.2], "hi": [0.45, 0.2, 0.2], "resolution": [3, 3, 3]},
-         "rest_shape": grow(0.15, 5), "material": {"model": "symmetric_dirichlet", "youngs_modulus": 1e4, "poisson_ratio": 0.3, "density": 1000.0}},
-        {"name": "cage", "kind": "obstacle", "generate": {"shape": "box_surface", "lo": [-0.5] * 3, "hi": [0.5] * 3, "resolution": 2}},
-    ], steps=6)
+    s = scene(
+        [
+            {
+                "name": "left",
+                "generate": {
+                    "shape": "tet_box",
+                    "lo": [-0.45, -0.2, -0.2],
+                    "hi": [-0.02, 0.2, 0.2],
+                    "resolution": [3, 3, 3],
+                },
+                "rest_shape": grow(0.15, 5),
+            },
+            {
+                "name": "right",
+                "generate": {
+                    "shape": "tet_box",
+                    "lo": [0.02, -0.2, -0.2],
+                    "hi": [0.45, 0.2, 0.2],
+                    "resolution": [3, 3, 3],
+                },
+                "rest_shape": grow(0.15, 5),
+                "material": {
+                    "model": "symmetric_dirichlet",
+                    "youngs_modulus": 1e4,
+                    "poisson_ratio": 0.3,
+                    "density": 1000.0,
+                },
+            },
+            {
+                "name": "cage",
+                "kind": "obstacle",
+                "generate": {"shape": "box_surface", "lo": [-0.5] * 3, "hi": [0.5] * 3, "resolution": 2},
+            },
+        ],
+        steps=6,
+    )
     res = simulate(s, tmp_path, progress=False)
     recs = check_every_frame(res)
     assert max(r["contacts"] for r in recs) > 0
@@ -72,11 +110,24 @@ def test_two_blocks_pressed_together_every_iterate_certified(tmp_path):
 
 
 def test_2d_disk_in_circle_neo_hookean(tmp_path):
-    s = scene([
-        {"name": "disk", "generate": {"shape": "disk", "radius": 0.3, "resolution": 4}, "rest_shape": grow(0.2, 6),
-         "scale": 1.0, "translate": [0.1, 0.0]},
-        {"name": "ring", "kind": "obstacle", "generate": {"shape": "circle_polygon", "radius": 0.5, "segments": 48}},
-    ], dim=2, steps=8)
+    s = scene(
+        [
+            {
+                "name": "disk",
+                "generate": {"shape": "disk", "radius": 0.3, "resolution": 4},
+                "rest_shape": grow(0.2, 6),
+                "scale": 1.0,
+                "translate": [0.1, 0.0],
+            },
+            {
+                "name": "ring",
+                "kind": "obstacle",
+                "generate": {"shape": "circle_polygon", "radius": 0.5, "segments": 48},
+            },
+        ],
+        dim=2,
+        steps=8,
+    )
     res = simulate(s, tmp_path, progress=False)
     recs = check_every_frame(res)
     assert max(r["contacts"] for r in recs) > 0
@@ -87,7 +138,12 @@ def test_2d_disk_in_circle_neo_hookean(tmp_path):
 def test_intersecting_input_refused_by_default_and_preserved_on_request(tmp_path):
     objs = [
         {"name": "a", "generate": {"shape": "ball", "radius": 0.3, "resolution": 2}},
-        {"name": "b", "generate": {"shape": "ball", "radius": 0.3, "resolution": 2}, "translate": [0.4513, 0.0217, 0.0131], "rotate": [{"axis": [0.3, 1.0, 0.2], "degrees": 17.0}]},
+        {
+            "name": "b",
+            "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+            "translate": [0.4513, 0.0217, 0.0131],
+            "rotate": [{"axis": [0.3, 1.0, 0.2], "degrees": 17.0}],
+        },
     ]
     with pytest.raises(IntersectingInputError) as err:
         simulate(scene(objs, steps=2), tmp_path / "refused", progress=False)
@@ -127,11 +183,16 @@ def test_stationary_stop_and_resume(tmp_path):
 
 
 def test_fixed_vertices_by_box_and_indices_do_not_move(tmp_path):
-    objs = [{
-        "name": "slab", "generate": {"shape": "tet_box", "lo": [-0.3, -0.1, -0.3], "hi": [0.3, 0.1, 0.3], "resolution": [3, 2, 3]},
-        "rest_shape": {"scale": [1.0, 1.5, 1.0]},  # wants to be 1.5× taller: it stretches away from the pinned bottom
-        "fixed": [{"box": [[-1, -0.2, -1], [1, -0.09, 1]]}, {"indices": [5]}],
-    }]
+    objs = [
+        {
+            "name": "slab",
+            "generate": {"shape": "tet_box", "lo": [-0.3, -0.1, -0.3], "hi": [0.3, 0.1, 0.3], "resolution": [3, 2, 3]},
+            "rest_shape": {
+                "scale": [1.0, 1.5, 1.0]
+            },  # wants to be 1.5× taller: it stretches away from the pinned bottom
+            "fixed": [{"box": [[-1, -0.2, -1], [1, -0.09, 1]]}, {"indices": [5]}],
+        }
+    ]
     s = scene(objs, steps=3, tol=1e-2)
     res = simulate(s, tmp_path, progress=False)
     from idp.mesh.generate import tet_box
