@@ -1,7 +1,7 @@
 """Barrier distortion energies E(x) = sum_t v_t Psi(F_t) on tetrahedra (3D) and triangles (2D).
 
 Models (paper §4.4): neo-Hookean and symmetric Dirichlet, both -> +inf as det F -> 0+, so a
-line search with the inversion filter (``idp.solver.inversion_filter``) keeps every element
+line search with the inversion filter (``idp.energies.inversion_filter``) keeps every element
 positively oriented.  Material parameters are per element so several materials coexist.
 Element Hessians are made PSD per element through the analytic singular-value eigensystem
 (see ``_elastic_kernels``), as projected Newton needs.
@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from idp.energies import _elastic_kernels as _k
+from idp.energies.inversion_filter import max_inversion_free_step
 
 MODELS = {"neo_hookean": _k.NEO_HOOKEAN, "symmetric_dirichlet": _k.SYMMETRIC_DIRICHLET}
 
@@ -123,6 +124,21 @@ class ElasticEnergy:
         self._dofs = (self.elements[:, :, None] * self.dim + np.arange(self.dim)[None, None, :]).reshape(
             m, (self.dim + 1) * self.dim
         )
+
+    #: Fraction of an element's current volume the inversion filter lets it shrink to along one step.
+    inversion_eta: float = 0.1
+
+    @property
+    def guards_inversion(self) -> bool:
+        """True for barrier energies (→ +inf as det F → 0⁺): the line search must keep det F > 0."""
+        return True
+
+    def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
+        """Largest α ≤ 1 keeping every element's volume above ``inversion_eta`` × its current value along
+        x + α·direction (Smith & Schaefer's filter); 1 for energies that do not guard inversion."""
+        if not self.guards_inversion:
+            return 1.0
+        return max_inversion_free_step(x, direction, self.elements, self.inversion_eta)
 
     # ------------------------------------------------------------------ rest shape
     def set_rest_scale(self, scale: float | np.ndarray) -> None:

@@ -486,7 +486,16 @@ GENERATORS: dict[str, type[_Generator]] = {
 """Generator model per ``shape`` name."""
 
 Generate = Annotated[
-    BallGen | EllipsoidGen | TetBoxGen | BoxSurfaceGen | CylinderSurfaceGen | HourglassSurfaceGen | DiskGen | RectangleGen | CirclePolygonGen | BoxPolygonGen,
+    BallGen
+    | EllipsoidGen
+    | TetBoxGen
+    | BoxSurfaceGen
+    | CylinderSurfaceGen
+    | HourglassSurfaceGen
+    | DiskGen
+    | RectangleGen
+    | CirclePolygonGen
+    | BoxPolygonGen,
     Field(discriminator="shape"),
 ]
 

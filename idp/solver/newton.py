@@ -21,7 +21,7 @@ import scipy.sparse as sp
 
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
-from idp.solver.inversion_filter import max_inversion_free_step
+from idp.energies.inversion_filter import max_inversion_free_step
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
 from idp.solver.pcg import pcg_from_majorant
 

@@ -1,4 +1,4 @@
-"""Tests of idp.solver.inversion_filter.max_inversion_free_step."""
+"""Tests of idp.energies.inversion_filter.max_inversion_free_step."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from idp.solver.inversion_filter import _first_root, max_inversion_free_step
+from idp.energies.inversion_filter import _first_root, max_inversion_free_step
 
 TET = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.3, 1.0]])
 TRI = np.array([[0.0, 0], [1, 0], [0.3, 1.0]])
