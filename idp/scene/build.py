@@ -18,7 +18,10 @@ from idp.mesh.placement import place, select_in_box
 from idp.mesh.surface import boundary_faces, enclosed_volume, surface_topology
 from idp.mesh.types import SurfaceMesh, VolumeMesh
 from idp.output.parts import Part
+from idp.scene.build_handles import motion_from_spec, selection_from_spec
 from idp.solver.newton import NewtonSettings
+from idp.stepper.dirichlet import DirichletTargets
+from idp.stepper.handles import Handle, HandleSet, check_static_overlaps
 from idp.stepper.run import RunSettings
 from idp.stepper.system import Body, RestShapeSchedule, System
 
@@ -136,6 +139,9 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         offset += n
     num_dynamic = offset
     cage_volume = 0.0
+    # kinematic (moving) obstacles first, then the static ones
+    obstacles.sort(key=lambda item: item[1].motion is None)
+    kinematic = []
     for i, obj, mesh, verts in obstacles:
         topo = surface_topology(mesh.faces, verts.shape[0])
         if not topo.is_closed:
@@ -149,8 +155,11 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         chunks.append(verts)
         parts.append(Part(obj.name, "obstacle", ids, None, surface))
         surfaces.append(surface)
-        fixed.append(np.ones(n, dtype=bool))
-        cage_volume += abs(enclosed_volume(verts, mesh.faces))
+        fixed.append(np.ones(n, dtype=bool))  # kinematic ones too: moved as a whole (stepper/dirichlet.py)
+        if obj.motion is not None:
+            kinematic.append((i, obj, ids))
+        else:
+            cage_volume += abs(enclosed_volume(verts, mesh.faces))
         offset += n
 
     x = np.ascontiguousarray(np.vstack(chunks), dtype=float)
@@ -211,7 +220,25 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         "num_free_dofs": int(free_mask.sum()),
         "input_intersecting_pairs": n_pairs,
     }
+    handles = _build_handles(scene, deformables, kinematic, bodies, x, pinned, np.sqrt(scene.time.h))
     system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
+    if handles:
+        dc = scene.dirichlet
+        tol = dc.tolerance * dhat if dc.tolerance_mode == "dhat" else dc.tolerance
+        bc = DirichletTargets(
+            masses,
+            dim,
+            tolerance=tol,
+            free_vertices=~pinned,
+            kappa_initial=dc.kappa_initial,
+            max_doublings=dc.max_doublings,
+        )
+        system.step_constraint = bc
+        fixed_deformable = pinned.copy()
+        fixed_deformable[num_dynamic:] = False  # obstacle vertices are bound only by their own motion
+        system.conditions.append(HandleSet(handles, bc, float(np.sqrt(scene.time.h)), pinned=fixed_deformable))
+        meta["handles"] = [h.name for h in handles]
+        meta["dirichlet_tolerance"] = tol
     certifier = Certifier(
         x,
         all_surface if c.enabled else None,
@@ -237,8 +264,63 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         write_vtu=o.vtu,
         write_png=o.png,
         on_nonconvergence=s.on_nonconvergence,
+        on_unmet_targets=scene.dirichlet.on_unmet,
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+
+
+def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) -> list[Handle]:
+    """Handles of the deformable objects and one whole-object handle per kinematic obstacle.
+
+    Selections on the rest shape are made now, so an empty selection, an index out of range, a handle on
+    fixed vertices, a targets file of the wrong size or two overlapping handles fail before anything runs."""
+    from idp.mesh.selection import Selection
+
+    handles: list[Handle] = []
+    ids_of = {obj.name: ids for obj, ids, _, _ in bodies}
+    for i, obj, _, _ in deformables:
+        ids = ids_of[obj.name]
+        for j, hs in enumerate(obj.handles):
+            key = f"objects[{i}].handles[{j}]"
+            h = Handle(
+                f"{obj.name}.{hs.name}",
+                ids,
+                selection_from_spec(hs.select),
+                motion_from_spec(hs.motion, key, dt),
+                start=hs.start,
+                end=hs.end,
+                after=hs.after,
+                select_on=hs.select_on,
+            )
+            try:
+                if hs.select_on == "rest":
+                    h.select(x)
+                    bad = h.vertices[pinned[h.vertices]]
+                    if bad.size:
+                        raise SceneError(
+                            f"selects {bad.size} vertices that `fixed` pins (e.g. local vertex {int(bad[0] - ids[0])})"
+                        )
+                    h.motion.check_count(h.vertices.size)
+            except (SceneError, ValueError) as exc:
+                msg = str(exc).replace(f"handle {h.name!r}: ", "")
+                raise SceneError(f"{key} ({hs.name}): {msg}") from exc
+            handles.append(h)
+    for i, obj, ids in kinematic:
+        km = obj.motion
+        key = f"objects[{i}].motion"
+        h = Handle(
+            obj.name,
+            ids,
+            Selection(everything=True),
+            motion_from_spec(km.motion, f"{key}.motion", dt),
+            start=km.start,
+            end=km.end,
+            after="hold",
+        )
+        h.select(x)
+        handles.append(h)
+    check_static_overlaps(handles, scene.time.steps)
+    return handles
 
 
 def _describe_vertex(v: int, parts: list[Part]) -> str:

@@ -93,6 +93,11 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
             ob.mesh = _absolute(ob.mesh, base)
             if not ob.mesh.is_file():
                 missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
+        for j, hd in enumerate(ob.handles):
+            if hd.motion.file is not None:
+                hd.motion.file = _absolute(hd.motion.file, base)
+                if not hd.motion.file.is_file():
+                    missing.append(f"{source}: objects[{i}].handles[{j}].motion.file: file not found: {hd.motion.file}")
     if missing:
         raise SceneError("\n".join(missing))
     if base_dir is not None:

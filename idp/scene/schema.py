@@ -11,119 +11,45 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
-    AfterValidator,
     BaseModel,
-    ConfigDict,
     Field,
     Strict,
-    ValidationError,
     field_validator,
     model_validator,
 )
-from pydantic_core import PydanticCustomError
 
-from idp.errors import SceneError
-
-# ---------------------------------------------------------------------------------------------
-# Scalar and vector types (strict: TOML/JSON `true` or "10" is never silently a number)
-
-Float = Annotated[float, Strict()]
-Int = Annotated[int, Strict()]
-Bool = Annotated[bool, Strict()]
-PosFloat = Annotated[float, Strict(), Field(gt=0)]
-PosInt = Annotated[int, Strict(), Field(ge=1)]
-NonNegInt = Annotated[int, Strict(), Field(ge=0)]
-Name = Annotated[str, Field(min_length=1)]
-
-
-def _fixed_length(n: int) -> AfterValidator:
-    """Validator requiring a list of exactly ``n`` entries."""
-
-    def check(v: list[Any]) -> list[Any]:
-        if len(v) != n:
-            raise PydanticCustomError(
-                "vector_length",
-                "must have {expected} entries (got {actual})",
-                {"expected": n, "actual": len(v)},
-            )
-        return v
-
-    return AfterValidator(check)
-
-
-Vec2 = Annotated[list[Float], _fixed_length(2)]
-Vec3 = Annotated[list[Float], _fixed_length(3)]
-PosVec3 = Annotated[list[PosFloat], _fixed_length(3)]
-Res2 = Annotated[list[PosInt], _fixed_length(2)]
-Res3 = Annotated[list[PosInt], _fixed_length(3)]
-Scale = Union[Float, list[Float]]
-
-
-def rule_error(problems: list[tuple[str, str]]) -> PydanticCustomError:
-    """A cross-field error; each problem is ``(sub-path relative to the model, message)``."""
-    return PydanticCustomError(
-        "scene_rule",
-        "{message}",
-        {
-            "message": "; ".join(f"{p}: {m}" if p else m for p, m in problems),
-            "problems": [[p, m] for p, m in problems],
-        },
-    )
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _check_scale(v: Any) -> Any:
-    """Accept a positive number or a list of positive numbers (clear single message otherwise)."""
-    if _is_number(v):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"must be > 0 (got {v})")
-        return float(v)
-    if isinstance(v, (list, tuple)):
-        if len(v) == 0:
-            raise ValueError("must be a number or a non-empty list of numbers")
-        for i, x in enumerate(v):
-            if not _is_number(x):
-                raise ValueError(f"entry [{i}] must be a number (got {x!r})")
-            if not (math.isfinite(x) and x > 0):
-                raise ValueError(f"entry [{i}] must be > 0 (got {x})")
-        return [float(x) for x in v]
-    raise ValueError(f"must be a positive number or a list of positive numbers (got {v!r})")
-
-
-def _check_box(lo: list[float], hi: list[float], strict: bool) -> list[tuple[str, str]]:
-    """Problems with a box given by its corners (per-axis lo < hi, or lo <= hi)."""
-    if len(lo) != len(hi):
-        return [("hi", f"must have as many entries as lo ({len(lo)}, got {len(hi)})")]
-    bad = [i for i in range(len(lo)) if (lo[i] >= hi[i] if strict else lo[i] > hi[i])]
-    if bad:
-        op = "<" if strict else "<="
-        return [("hi", f"need lo {op} hi on every axis (axis {bad[0]}: lo={lo[bad[0]]}, hi={hi[bad[0]]})")]
-    return []
-
-
-class _Model(BaseModel):
-    """Base: unknown keys are errors, floats must be finite; construction raises SceneError."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    def __init__(self, /, **data: Any) -> None:
-        try:
-            super().__init__(**data)
-        except ValidationError as err:
-            from idp.scene.load import format_validation_error
-
-            raise SceneError(format_validation_error(err, type(self).__name__)) from err
-
-    # Validation (model_validate, nested models) must keep pydantic's own path and not call this
-    # wrapper; the flag tells pydantic the override behaves like BaseModel.__init__.
-    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
-
+from idp.scene.handles_schema import (
+    DirichletConfig,
+    HandleSpec,
+    KeyframeSpec,
+    KinematicSpec,
+    MotionSpec,
+    RotationSpec,
+    SelectionSpec,
+    SphereSpec,
+)
+from idp.scene.schema_base import (
+    Bool,
+    Float,
+    Name,
+    NonNegInt,
+    PosFloat,
+    PosInt,
+    PosVec3,
+    Res2,
+    Res3,
+    Scale,
+    Vec2,
+    Vec3,
+    _check_box,
+    _check_scale,
+    _is_number,
+    _Model,
+    rule_error,
+)
 
 # ---------------------------------------------------------------------------------------------
 # Global sections
@@ -521,6 +447,8 @@ class SceneObject(_Model):
     material: Material | None = None  # filled with Material() for deformables
     rest_shape: RestShape | None = None  # filled with RestShape() for deformables
     fixed: list[FixedSelector] = Field(default_factory=list)
+    handles: list[HandleSpec] = Field(default_factory=list)
+    motion: KinematicSpec | None = None  # obstacles only: a kinematic (moving) obstacle
 
     @field_validator("scale", mode="before")
     @classmethod
@@ -540,6 +468,14 @@ class SceneObject(_Model):
                     probs.append((key, "only allowed on deformable objects (this object is an obstacle)"))
             if self.fixed:
                 probs.append(("fixed", "only allowed on deformable objects (obstacles are fixed entirely)"))
+            if self.handles:
+                probs.append(("handles", "only allowed on deformable objects (move an obstacle with `motion`)"))
+        elif self.motion is not None:
+            probs.append(("motion", "only allowed on obstacles (drive a deformable object with `handles`)"))
+        names = [h.name for h in self.handles]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            probs.append(("handles", f"duplicate handle name {dup[0]!r}"))
         if self.generate is not None:
             gen = self.generate
             want = "volume" if self.kind == "deformable" else "surface"
@@ -562,6 +498,40 @@ class SceneObject(_Model):
         return self
 
 
+def _motion_vectors(path: str, m: MotionSpec, d: int, probs: list[tuple[str, str]]) -> None:
+    """Dimension checks of a motion's vectors (lengths d; rotation axis only in 3D)."""
+
+    def vec(key: str, v: list[float] | None) -> None:
+        if v is not None and len(v) != d:
+            probs.append((f"{path}.{key}", f"must have {d} entries for dim = {d} (got {len(v)})"))
+
+    vec("velocity", m.velocity)
+    vec("center", m.center)
+    vec("offset", m.offset)
+    if isinstance(m.rate, list):
+        vec("rate", m.rate)
+    if m.type == "rotate":
+        if d == 3 and m.axis is None:
+            probs.append((f"{path}.axis", "required in 3D"))
+        elif d == 2 and m.axis is not None:
+            probs.append((f"{path}.axis", "must be omitted in 2D (rotation is in the plane)"))
+        elif m.axis is not None:
+            vec("axis", m.axis)
+            if not any(a != 0 for a in m.axis):
+                probs.append((f"{path}.axis", "must be non-zero"))
+    for j, k in enumerate(m.keyframes or []):
+        vec(f"keyframes[{j}].translate", k.translate)
+        if isinstance(k.scale, list):
+            vec(f"keyframes[{j}].scale", k.scale)
+        if k.rotate is not None:
+            if d == 3 and k.rotate.axis is None and k.rotate.degrees != 0:
+                probs.append((f"{path}.keyframes[{j}].rotate.axis", "required in 3D"))
+            elif d == 2 and k.rotate.axis is not None:
+                probs.append((f"{path}.keyframes[{j}].rotate.axis", "must be omitted in 2D"))
+            elif k.rotate.axis is not None:
+                vec(f"keyframes[{j}].rotate.axis", k.rotate.axis)
+
+
 class Scene(_Model):
     """A complete scene: global settings plus objects."""
 
@@ -571,6 +541,7 @@ class Scene(_Model):
     solver: SolverConfig = Field(default_factory=SolverConfig)
     contact: ContactConfig = Field(default_factory=ContactConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
+    dirichlet: DirichletConfig = Field(default_factory=DirichletConfig)
     objects: list[SceneObject]
 
     @model_validator(mode="after")
@@ -605,6 +576,16 @@ class Scene(_Model):
                 if sel.box is not None:
                     vec(f"{p}.fixed[{j}].box[0]", sel.box[0])
                     vec(f"{p}.fixed[{j}].box[1]", sel.box[1])
+            for j, hd in enumerate(ob.handles):
+                q = f"{p}.handles[{j}]"
+                if hd.select.box is not None:
+                    vec(f"{q}.select.box[0]", hd.select.box[0])
+                    vec(f"{q}.select.box[1]", hd.select.box[1])
+                if hd.select.sphere is not None:
+                    vec(f"{q}.select.sphere.center", hd.select.sphere.center)
+                _motion_vectors(f"{q}.motion", hd.motion, d, probs)
+            if ob.motion is not None:
+                _motion_vectors(f"{p}.motion.motion", ob.motion.motion, d, probs)
             if ob.generate is not None and ob.generate.dim != d:
                 probs.append(
                     (
@@ -642,6 +623,14 @@ MODELS: dict[str, type[BaseModel]] = {
         RestShape,
         FixedSelector,
         Rotation,
+        SelectionSpec,
+        SphereSpec,
+        MotionSpec,
+        KeyframeSpec,
+        RotationSpec,
+        HandleSpec,
+        KinematicSpec,
+        DirichletConfig,
         *GENERATORS.values(),
     )
 }

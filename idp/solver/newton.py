@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
-from idp.energies.inversion_filter import max_inversion_free_step
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
 from idp.solver.pcg import pcg_from_majorant
 
@@ -85,6 +85,12 @@ class StepSolver:
         self.linear = linear_solver
         self.certifier = certifier
         self.iterate_checks = 0
+        self._constraint = None
+        self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
+        self._row_cache: tuple[int, np.ndarray] | None = None
+        for wt in system.terms:
+            if hasattr(wt.term, "inversion_eta"):
+                wt.term.inversion_eta = settings.inversion_eta
 
     # -- energy pieces ----------------------------------------------------------------
     def _contact_eval(self, x, res: NewtonResult, candidates=None):
@@ -101,20 +107,28 @@ class StepSolver:
         if not math.isfinite(el):
             return math.inf, el, 0.0
         b = s.contact.value(ev) if ev is not None else 0.0
-        return s.inertia.value(x, x_prev) + s.h * el + b, el, b
+        pen = self._constraint.penalty_value(x) if self._constraint is not None else 0.0
+        return s.inertia.value(x, x_prev) + s.h * el + b + pen, el, b
 
     def _derivatives(self, x, x_prev, ev):
         s = self.system
         g = s.inertia.gradient(x, x_prev)
+        diag = s.inertia.hessian_diagonal()
+        c = self._constraint
+        if c is not None:
+            g = g + c.penalty_gradient(x)
+            diag = diag + c.penalty_hessian_diagonal()
+        for t in s.linear_terms:
+            g += s.h * t.gradient(x)
         asm = s.assembler
-        data = asm.start_data(s.inertia.hessian_diagonal()[s.dof_map.free_dofs])
-        for i, body in enumerate(s.bodies):  # element Hessians streamed into the matrix, never all held
+        data = asm.start_data(diag[s.dof_map.free_dofs])
+        for i, wt in enumerate(s.terms):  # element Hessians streamed into the matrix, never all held
 
-            def sink(first, blocks, i=i):
-                asm.add_element_blocks(data, i, first, blocks, s.h)
+            def sink(first, blocks, i=i, w=s.h * wt.weight):
+                asm.add_element_blocks(data, i, first, blocks, w)
 
-            _, ge = body.elastic.value_gradient_hessian_groups(x, sink, project=True)
-            g += s.h * ge
+            _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
+            g += s.h * wt.weight * ge
         data = asm.finish_data(data)
         active = ev is not None and ev.num_active > 0
         if active:
@@ -147,14 +161,18 @@ class StepSolver:
         if not cert.ok:
             raise CertificateError(f"Newton iterate {it} failed the injectivity check: {cert.describe()}")
 
-    def _filtered_step(self, x, P, x_prev, energy, ev, res):
-        """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
-        halved until the step energy does not increase (plain decrease, as the reference)."""
-        s, cfg = self.system, self.settings
+    def feasible_step(self, x: np.ndarray, P: np.ndarray, res: NewtonResult | None = None, ev=None) -> float:
+        """Largest α ≤ 1 for which x + α·P is inversion-free (every term's ``max_step``: the det-root filter of
+        barrier elastic energies) and collision-free (CCD on the shortened move)."""
+        alpha, _, _, _ = self._feasible(x, P, res if res is not None else NewtonResult(), ev)
+        return alpha
+
+    def _feasible(self, x, P, res: NewtonResult, ev):
+        s = self.system
         t = time.perf_counter()
         alpha_inv = 1.0
-        for body in s.bodies:
-            alpha_inv = min(alpha_inv, max_inversion_free_step(x, P, body.elastic.elements, cfg.inversion_eta))
+        for wt in s.terms:
+            alpha_inv = min(alpha_inv, max_step(wt.term, x, P))
         res.timings["line_search"] += time.perf_counter() - t
         alpha = alpha_inv
         alpha_ccd = 1.0
@@ -164,10 +182,19 @@ class StepSolver:
             t = time.perf_counter()
             cand = s.contact.sweep_candidates(x, x_end)
             t1 = time.perf_counter()
+            if ev is None:
+                ev = self._contact_eval(x, res)
             alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev))
             res.timings["contact_build"] += t1 - t
             res.timings["ccd"] += time.perf_counter() - t1
             alpha *= alpha_ccd
+        return alpha, alpha_inv, alpha_ccd, cand
+
+    def _filtered_step(self, x, P, x_prev, energy, ev, res):
+        """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
+        halved until the step energy does not increase (plain decrease, as the reference)."""
+        cfg = self.settings
+        alpha, alpha_inv, alpha_ccd, cand = self._feasible(x, P, res, ev)
         while alpha > cfg.min_alpha:
             xt = x + alpha * P
             evt = self._contact_eval(xt, res, cand) if ev is not None else None
@@ -178,6 +205,20 @@ class StepSolver:
                 return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
             alpha *= 0.5
         return False, 0.0, alpha_inv, alpha_ccd, None
+
+    def _hold(self, H: sp.csr_matrix) -> sp.csr_matrix:
+        """Held DOFs (targets met, fixed handles): zero their rows and columns except the diagonal, so the
+        Newton direction is exactly 0 there (with their gradient entries zeroed) and the pattern is kept."""
+        held = self._held
+        if held is None:
+            return H
+        if self._row_cache is None or self._row_cache[0] != H.nnz:
+            self._row_cache = (H.nnz, np.repeat(np.arange(H.shape[0]), np.diff(H.indptr)))
+        rows = self._row_cache[1]
+        cols = H.indices
+        mask = (held[rows] | held[cols]) & (rows != cols)
+        H.data[mask] = 0.0
+        return H
 
     def _direction(self, H, g: np.ndarray, res: NewtonResult) -> np.ndarray:
         """Newton direction −H⁻¹g on the free DOFs (diagonally scaled gradient if H is not PD)."""
@@ -203,9 +244,14 @@ class StepSolver:
         K = s.contact_pattern.fold_correction
         t = time.perf_counter()
         try:
-            p, its, ok = pcg_from_majorant(
-                lambda v: M @ v + K @ v, self.linear.solve, -g, p_folded, cfg.pcg_rtol, cfg.pcg_max_iterations
-            )
+            keep = None if self._held is None else ~self._held
+
+            def apply(v):
+                if keep is None:
+                    return M @ v + K @ v
+                return M @ v + keep * (K @ (keep * v))
+
+            p, its, ok = pcg_from_majorant(apply, self.linear.solve, -g, p_folded, cfg.pcg_rtol, cfg.pcg_max_iterations)
         except SolverError:  # no usable factor of M (its direction was a gradient-descent fallback)
             its, ok = 0, False
         res.timings["linear_solve"] += time.perf_counter() - t
@@ -213,20 +259,30 @@ class StepSolver:
         if ok:
             return p
         t = time.perf_counter()
-        H = s.contact_pattern.exact_matrix()
+        H = self._hold(s.contact_pattern.exact_matrix())
         res.timings["assembly"] += time.perf_counter() - t
         res.exact_refactorizations += 1
         return self._direction(H, g, res)
 
     # -- main loop -------------------------------------------------------------------------
     def solve(self, x_prev: np.ndarray) -> tuple[np.ndarray, NewtonResult]:
-        """Minimise the step energy S(x) starting from ``x_prev`` = x_t."""
+        """Minimise the step energy S(x) starting from ``x_prev`` = x_t.
+
+        With a step constraint (``system.step_constraint``, §4.3) the first iterate is its feasible move of the
+        bound vertices, its penalty joins S while it is on, its held DOFs do not move, and the loop stops only
+        once it is settled (see :mod:`idp.solver.constraint`)."""
         s, cfg = self.system, self.settings
         res = NewtonResult()
         x = x_prev.copy()
         n, d = x.shape
         free = s.dof_map.free_dofs
         sqrt_h = math.sqrt(s.h)
+        c = self._constraint = s.step_constraint
+        self._held = None
+        feasible = self.feasible_step
+        if c is not None:
+            x = c.begin(x, feasible)
+            self._update_held(c, free)
         ev = self._contact_eval(x, res)
         if ev is not None:
             self._init_kappa(x, x_prev, ev)
@@ -242,6 +298,9 @@ class StepSolver:
             t = time.perf_counter()
             g_full, H = self._derivatives(x, x_prev, ev)
             g = g_full[free]
+            if self._held is not None:
+                g[self._held] = 0.0
+                H = self._hold(H)
             res.timings["assembly"] += time.perf_counter() - t
             if not np.all(np.isfinite(g)):
                 raise SolverError(f"non-finite gradient at Newton iteration {it}")
@@ -264,16 +323,13 @@ class StepSolver:
             res.inversion_alphas.append(alpha_inv)
             res.ccd_alphas.append(alpha_ccd)
             if accepted:
-                xt, evt, et, elt, bt = trial
-            if not accepted:
+                x, ev, energy, el, bar = trial
+                res.alphas.append(alpha)
+            else:
                 res.alphas.append(0.0)
-                if converged:
-                    res.converged = True
-                else:
+                if not converged:
                     res.line_search_failed = True
-                break
-            x, ev, energy, el, bar = xt, evt, et, elt, bt
-            res.alphas.append(alpha)
+                    break
 
             if ev is not None:
                 min_d = s.contact.min_distance(ev)
@@ -283,7 +339,16 @@ class StepSolver:
                 if s.contact.kappa != kappa_before:  # the objective changed: re-evaluate it
                     energy, el, bar = self._energy(x, x_prev, ev)
             self._check_iterate(x, it, res)
-            if converged:
+            changed = False
+            if c is not None:
+                x_new, changed = c.after_iterate(x, converged, feasible)
+                if x_new is not x:  # bound vertices snapped onto their targets (a feasible move)
+                    x = x_new
+                    ev = self._contact_eval(x, res)
+                if changed:
+                    self._update_held(c, free)
+                    energy, el, bar = self._energy(x, x_prev, ev)
+            if converged and not changed and (c is None or c.settled):
                 res.converged = True
                 break
         else:
@@ -295,3 +360,7 @@ class StepSolver:
             res.kappa = s.contact.kappa
             res.min_distance = s.contact.min_distance(ev)
         return x, res
+
+    def _update_held(self, c, free: np.ndarray) -> None:
+        held = c.held_dofs()[free]
+        self._held = held if held.any() else None

@@ -34,6 +34,7 @@ class RunSettings:
     write_vtu: bool = True
     write_png: bool = True
     on_nonconvergence: str = "warn"
+    on_unmet_targets: str = "warn"  # a step ending with Dirichlet targets unmet: "warn" or "error" (stop)
     progress: bool = True
     resume: bool = False
 
@@ -49,16 +50,32 @@ class RunResult:
 
 
 def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
-    """Write the finished state atomically (temp file + rename): an interruption never leaves a torn file."""
+    """Write the finished state atomically (temp file + rename): an interruption never leaves a torn file.
+
+    Holds the positions, the step, the barrier stiffness and every per-step condition's own state (handle
+    selections made during the run, rest frames changed by plasticity, ...)."""
     tmp = path.with_name(path.name + ".tmp.npz")
+    extra = {}
+    for i, cond in enumerate(system.conditions):
+        if hasattr(cond, "state"):
+            for k, v in cond.state().items():
+                extra[f"cond{i}__{k}"] = v
     np.savez(
         tmp,
         x=x,
         step=step,
         kappa=system.contact.kappa if system.contact else 0.0,
         kappa_max=system.contact.kappa_max if system.contact else 0.0,
+        **extra,
     )
     tmp.replace(path)
+
+
+def _load_condition_states(ck, system) -> None:
+    for i, cond in enumerate(system.conditions):
+        if hasattr(cond, "load_state"):
+            pre = f"cond{i}__"
+            cond.load_state({k[len(pre) :]: ck[k] for k in ck.files if k.startswith(pre)})
 
 
 def _fill_fraction(system, x) -> float | None:
@@ -104,6 +121,7 @@ def run_simulation(
         start_step = int(ck["step"])
         if system.contact is not None:
             system.contact.kappa, system.contact.kappa_max = float(ck["kappa"]), float(ck["kappa_max"])
+        _load_condition_states(ck, system)
         log.info("resuming %s after step %d", out, start_step)
 
     x0 = system.x.copy()
@@ -123,7 +141,8 @@ def run_simulation(
 
     t_run = time.perf_counter()
     x = system.x
-    total_its, uncertified, nonconverged = 0, 0, 0
+    total_its, uncertified, nonconverged, unmet_steps = 0, 0, 0, 0
+    bc = system.step_constraint
     stopped_reason = "step count reached"
     step = start_step
     records = []
@@ -131,6 +150,8 @@ def run_simulation(
         for step in range(start_step + 1, settings.steps + 1):
             t_step = time.perf_counter()
             system.set_rest_shape_for_step(step)
+            for cond in system.conditions:
+                cond.before_step(system, step, x)
             x_new, res = solver.solve(x)
             t_cert = time.perf_counter()
             cert = certifier.check(x_new)
@@ -169,8 +190,16 @@ def run_simulation(
                 "certificate": cert.to_dict(),
                 "timings": timings,
             }
+            bc_report = bc.report(x, system.meta.get("dhat")) if bc is not None and bc.active else None
+            if bc_report is not None:
+                rec["dirichlet"] = bc_report
+                if not bc_report["met"]:
+                    unmet_steps += 1
             records.append(rec)
             stats.add_step(rec)
+            for cond in system.conditions:
+                if hasattr(cond, "after_step"):
+                    cond.after_step(system, step, x)
             if not cert.ok:
                 uncertified += 1
                 raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
@@ -181,6 +210,16 @@ def run_simulation(
                 if settings.on_nonconvergence == "error":
                     raise SolverError(msg)
                 log.warning(msg)
+            if bc_report is not None and not bc_report["met"]:
+                msg = (
+                    f"step {step} ended with Dirichlet targets unmet: max distance {bc_report['residual_max']:.3e} "
+                    f"(rms {bc_report['residual_rms']:.3e}), kappa_B {bc_report['kappa_B']:.3g}"
+                )
+                if settings.on_unmet_targets == "error":
+                    writer.write(step, x, time=step * math.sqrt(system.h))
+                    _save_checkpoint(checkpoint, x, step, system)
+                    raise SolverError(msg)
+                log.warning(msg)
             last = step == settings.steps
             stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
             if last or stationary or step % settings.write_every == 0:
@@ -188,6 +227,8 @@ def run_simulation(
             _save_checkpoint(checkpoint, x, step, system)
             if progress is not None:
                 post = {"its": res.iterations, "contacts": res.num_contacts}
+                if bc_report is not None:
+                    post["BC"] = "met" if bc_report["met"] else f"UNMET {bc_report['residual_max']:.1e}"
                 if fill is not None:
                     post["fill"] = f"{100 * fill:.2f}%"
                 else:
@@ -217,6 +258,7 @@ def run_simulation(
         "wall_time": wall,
         "newton_iterations": total_its,
         "nonconverged_steps": nonconverged,
+        "steps_with_unmet_targets": unmet_steps,
         "uncertified_frames": uncertified,
         "all_certified": uncertified == 0,
         "fill_fraction": _fill_fraction(system, x),

@@ -9,8 +9,10 @@ import numpy as np
 from idp.contact.model import ContactModel
 from idp.energies.elastic import ElasticEnergy
 from idp.energies.inertia import Inertia
+from idp.energies.term import ElementTerm
 from idp.output.parts import Part
 from idp.solver.assembly import FixedPatternAssembler, FreeDofMap
+from idp.solver.constraint import StepConstraint
 from idp.solver.contact_pattern import GrowingBlockPattern
 
 
@@ -38,8 +40,22 @@ class Body:
 
 
 @dataclass
+class WeightedTerm:
+    """An element energy term of E with its weight: the step energy holds h · weight · term(x)."""
+
+    name: str
+    term: ElementTerm
+    weight: float = 1.0
+
+
+@dataclass
 class System:
-    """Everything one artificial time step needs (paper eq. 6)."""
+    """Everything one artificial time step needs (paper eq. 6).
+
+    E(x) = Σ body elastic energies + Σ ``extra_terms`` (membrane, bending, smoothing, ...); the Newton loop
+    sees all of them as :attr:`terms`. ``step_constraint`` (e.g. §4.3 Dirichlet targets,
+    :class:`idp.stepper.dirichlet.DirichletTargets`) adds its penalty and holds DOFs during a step;
+    ``conditions`` are called by the run loop before and after each step (handles, scripts, plasticity)."""
 
     dim: int
     x: np.ndarray  # (n, d) current positions, deformables first then obstacles
@@ -51,13 +67,16 @@ class System:
     contact: ContactModel | None = None
     num_dynamic_vertices: int = 0
     meta: dict = field(default_factory=dict)
+    extra_terms: list[WeightedTerm] = field(default_factory=list)
+    step_constraint: StepConstraint | None = None
+    conditions: list = field(default_factory=list)
+    linear_terms: list = field(default_factory=list)  # value(x)/gradient(x) only, e.g. −β xᵀN (no Hessian)
 
     def __post_init__(self):
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
-        self.assembler = FixedPatternAssembler(
-            [b.elastic.element_dofs() for b in self.bodies], self.dof_map, dim=self.dim
-        )
+        self.terms: list[WeightedTerm] = [WeightedTerm(b.name, b.elastic) for b in self.bodies] + list(self.extra_terms)
+        self.assembler = FixedPatternAssembler([t.term.element_dofs() for t in self.terms], self.dof_map, dim=self.dim)
         self.contact_pattern = None
         if self.contact is not None:
             self.collision_dofs = self.contact.collision_dofs()
@@ -81,12 +100,16 @@ class System:
             b.elastic.set_rest_scale(b.schedule.factor(step))
 
     def elastic_value(self, x: np.ndarray) -> float:
-        return float(sum(b.elastic.value(x) for b in self.bodies))
+        """E(x) without contact: Σ weight · term(x) over every element term, plus the linear terms."""
+        v = sum(t.weight * t.term.value(x) for t in self.terms)
+        return float(v + sum(t.value(x) for t in self.linear_terms))
 
     def elastic_gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros(x.size)
-        for b in self.bodies:
-            g += b.elastic.gradient(x)
+        for t in self.terms:
+            g += t.weight * t.term.gradient(x)
+        for t in self.linear_terms:
+            g += t.gradient(x)
         return g
 
     def deformable_volume(self, x: np.ndarray) -> float:

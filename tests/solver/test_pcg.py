@@ -63,7 +63,7 @@ def test_newton_exact_direction_after_a_fold(backend, cap):
     M = pattern.assemble(asm.assemble_data([blocks], [1.0], diag), C, dmap.global_to_free)
     assert pattern.last_folded
     solver = StepSolver(
-        SimpleNamespace(contact_pattern=pattern),
+        SimpleNamespace(contact_pattern=pattern, terms=[]),
         NewtonSettings(pcg_rtol=1e-10, pcg_max_iterations=cap),
         make_linear_solver(backend),
     )

@@ -1,0 +1,82 @@
+"""Scene specs → runtime selections and motions (:mod:`idp.mesh.selection`, :mod:`idp.stepper.motions`)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from idp.errors import SceneError
+from idp.mesh.selection import Selection
+from idp.stepper import motions as mo
+
+
+def selection_from_spec(spec) -> Selection:
+    """A :class:`~idp.mesh.selection.Selection` from a ``SelectionSpec``."""
+    if spec.box is not None:
+        return Selection(box=(np.asarray(spec.box[0], float), np.asarray(spec.box[1], float)), relative=spec.relative)
+    if spec.sphere is not None:
+        return Selection(
+            sphere=(np.asarray(spec.sphere.center, float), float(spec.sphere.radius)), relative=spec.relative
+        )
+    return Selection(indices=np.asarray(spec.indices, dtype=np.int64))
+
+
+def _vec(v, d: int | None = None) -> np.ndarray | None:
+    return None if v is None else np.asarray(v, dtype=float)
+
+
+def _load_targets(path: Path, key: str) -> np.ndarray:
+    """(k, d) or (F, k, d) float array from .npy / .npz (first array, or the one named ``targets``)."""
+    try:
+        data = np.load(path, allow_pickle=False)
+        if isinstance(data, np.lib.npyio.NpzFile):
+            names = data.files
+            if not names:
+                raise ValueError("the archive holds no array")
+            arr = data["targets"] if "targets" in names else data[names[0]]
+        else:
+            arr = data
+        arr = np.asarray(arr, dtype=float)
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"{key}.file: cannot read {path}: {exc}") from exc
+    if arr.ndim not in (2, 3) or not np.all(np.isfinite(arr)):
+        raise SceneError(f"{key}.file: {path} must hold finite (k, d) or (frames, k, d) targets, got shape {arr.shape}")
+    return arr
+
+
+def motion_from_spec(spec, key: str, dt: float) -> mo.Motion:
+    """A :class:`~idp.stepper.motions.Motion` from a ``MotionSpec`` (``key`` names it in errors; ``dt`` = √h)."""
+    t = spec.type
+    center = _vec(spec.center)
+    if t == "fixed":
+        return mo.Fixed()
+    if t == "translate":
+        return mo.Translate(_vec(spec.velocity))
+    if t == "rotate":
+        return mo.Rotate(float(spec.degrees_per_second), center if center is not None else 0.0, _vec(spec.axis))
+    if t == "scale":
+        return mo.Scale(_vec(spec.rate), center if center is not None else 0.0)
+    if t == "keyframes":
+        keys = []
+        for k in spec.keyframes:
+            d = None if k.translate is None else len(k.translate)
+            tr = _vec(k.translate) if k.translate is not None else 0.0
+            if k.rotate is None or k.rotate.degrees == 0:
+                rv = np.zeros(3 if (d or 3) == 3 else 1)
+            elif k.rotate.axis is None:  # 2D
+                rv = np.array([math.radians(k.rotate.degrees)])
+            else:
+                ax = np.asarray(k.rotate.axis, float)
+                rv = ax / np.linalg.norm(ax) * math.radians(k.rotate.degrees)
+            keys.append(mo.Keyframe(k.step * dt, tr, rv, np.asarray(k.scale, dtype=float)))
+        return mo.Keyframes(keys, center if center is not None else 0.0, smooth=spec.interpolation == "smooth")
+    # targets
+    if spec.offset is not None:
+        return mo.PathTargets(offset=_vec(spec.offset), quota=spec.quota, source=f"{key}.offset")
+    arr = _load_targets(Path(spec.file), key)
+    src = f"{key}.file ({spec.file})"
+    if arr.ndim == 2:
+        return mo.PathTargets(final=arr, quota=spec.quota, source=src)
+    return mo.FrameTargets(arr, dt, source=src)

@@ -1,0 +1,182 @@
+"""Scene-file models of handles, motions and Dirichlet settings (paper §4.3, §4.5).
+
+::
+
+    [[objects.handles]]
+    name = "left_cap"
+    select = { box = [[0, 0, 0], [0.06, 1, 1]], relative = true }   # or sphere / indices
+    motion = { type = "rotate", axis = [0, 0, 1], center = [0, 0.06, 0], degrees_per_second = -90 }
+    end = 26            # moves during steps 1..26, then holds (after = "hold") or lets go ("release")
+
+Obstacles move as a whole with ``motion`` (kinematic obstacles). Vector lengths are checked against the
+scene's ``dim`` by :class:`idp.scene.schema.Scene`.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from idp.scene.schema_base import Bool, Float, Name, NonNegInt, PosFloat, PosInt, Scale, _check_box, _Model, rule_error
+
+
+class SphereSpec(_Model):
+    """Vertices within ``radius`` of ``center`` (bbox-relative centre when the selection is relative)."""
+
+    center: list[Float]
+    radius: PosFloat
+
+
+class SelectionSpec(_Model):
+    """Exactly one of ``box`` [lo, hi], ``sphere`` or ``indices`` (object-local vertex ids).
+
+    ``relative``: box corners / sphere centre are fractions of the object's bounding box (0 = min, 1 = max)."""
+
+    box: list[list[Float]] | None = None
+    sphere: SphereSpec | None = None
+    indices: Annotated[list[NonNegInt], Field(min_length=1)] | None = None
+    relative: Bool = False
+
+    @model_validator(mode="after")
+    def _one(self) -> SelectionSpec:
+        given = [k for k in ("box", "sphere", "indices") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise rule_error([("", f"give exactly one of `box`, `sphere` or `indices` (got {given or 'none'})")])
+        if self.indices is not None and self.relative:
+            raise rule_error([("relative", "only applies to `box` and `sphere`")])
+        if self.box is not None:
+            if len(self.box) != 2:
+                raise rule_error([("box", f"must be two corners [lo, hi] (got {len(self.box)} entries)")])
+            probs = _check_box(self.box[0], self.box[1], strict=False)
+            if probs:
+                raise rule_error([("box", probs[0][1])])
+        return self
+
+
+class RotationSpec(_Model):
+    """A rotation for keyframes: ``degrees`` about ``axis`` (3D; omitted in 2D)."""
+
+    axis: list[Float] | None = None
+    degrees: Float = 0.0
+
+
+class KeyframeSpec(_Model):
+    """Transform of the handle at ``step`` steps after it starts: scale, then rotate, about ``center``, then
+    translate."""
+
+    step: NonNegInt
+    translate: list[Float] | None = None
+    rotate: RotationSpec | None = None
+    scale: Scale = 1.0
+
+
+MOTION_TYPES = ("fixed", "translate", "rotate", "scale", "keyframes", "targets")
+
+
+class MotionSpec(_Model):
+    """How a handle (or a kinematic obstacle) moves; rates are per second of scene time (one step = √h).
+
+    - ``fixed``: stays where it was when the handle started;
+    - ``translate``: ``velocity``;
+    - ``rotate``: ``degrees_per_second`` about ``axis`` (3D) through ``center``;
+    - ``scale``: factor 1 + ``rate``·t (scalar or per axis) about ``center``;
+    - ``keyframes``: ``keyframes`` (at least two, increasing ``step``), ``interpolation`` linear or smooth,
+      about ``center``;
+    - ``targets``: final positions reached in ``quota`` steps (§4.3), either ``offset`` (added to the
+      start positions) or ``file`` (.npy/.npz: (k, d) final targets, or (F, k, d) one frame per step).
+    """
+
+    type: Literal["fixed", "translate", "rotate", "scale", "keyframes", "targets"] = "fixed"
+    velocity: list[Float] | None = None
+    degrees_per_second: Float | None = None
+    axis: list[Float] | None = None
+    center: list[Float] | None = None
+    rate: Scale | None = None
+    keyframes: list[KeyframeSpec] | None = None
+    interpolation: Literal["linear", "smooth"] = "linear"
+    offset: list[Float] | None = None
+    file: Path | None = None
+    quota: PosInt = 1
+
+    @model_validator(mode="after")
+    def _fields(self) -> MotionSpec:
+        need = {
+            "fixed": (),
+            "translate": ("velocity",),
+            "rotate": ("degrees_per_second",),
+            "scale": ("rate",),
+            "keyframes": ("keyframes",),
+            "targets": (),
+        }[self.type]
+        probs = [(k, f"required for type = {self.type!r}") for k in need if getattr(self, k) is None]
+        allowed = set(need) | {"interpolation", "quota"}
+        allowed |= {
+            "rotate": {"axis", "center"},
+            "scale": {"center"},
+            "keyframes": {"center"},
+            "targets": {"offset", "file"},
+        }.get(self.type, set())
+        for k in ("velocity", "degrees_per_second", "axis", "center", "rate", "keyframes", "offset", "file"):
+            if getattr(self, k) is not None and k not in allowed:
+                probs.append((k, f"not used by type = {self.type!r}"))
+        if self.type == "targets" and (self.offset is None) == (self.file is None):
+            probs.append(("", "type = 'targets' needs exactly one of `offset` or `file`"))
+        if self.type != "targets" and self.quota != 1:
+            probs.append(("quota", "only used by type = 'targets'"))
+        if self.keyframes is not None:
+            if len(self.keyframes) < 2:
+                probs.append(("keyframes", "needs at least two keyframes"))
+            steps = [k.step for k in self.keyframes]
+            if any(b <= a for a, b in itertools.pairwise(steps)):
+                probs.append(("keyframes", f"steps must increase strictly (got {steps})"))
+        if probs:
+            raise rule_error(probs)
+        return self
+
+
+class HandleSpec(_Model):
+    """A handle: a vertex selection of this object driven by a motion during steps ``start``+1 … ``end``."""
+
+    name: Name
+    select: SelectionSpec
+    motion: MotionSpec = Field(default_factory=MotionSpec)
+    start: NonNegInt = 0
+    end: PosInt | None = None
+    after: Literal["hold", "release"] = "hold"
+    select_on: Literal["rest", "current"] = "rest"
+
+    @model_validator(mode="after")
+    def _range(self) -> HandleSpec:
+        if self.end is not None and self.end <= self.start:
+            raise rule_error([("end", f"must be > start ({self.start}), got {self.end}")])
+        return self
+
+
+class KinematicSpec(_Model):
+    """Motion of a whole obstacle (a kinematic rigid tool) during steps ``start``+1 … ``end``, then held."""
+
+    motion: MotionSpec
+    start: NonNegInt = 0
+    end: PosInt | None = None
+
+    @model_validator(mode="after")
+    def _range(self) -> KinematicSpec:
+        if self.end is not None and self.end <= self.start:
+            raise rule_error([("end", f"must be > start ({self.start}), got {self.end}")])
+        if self.motion.type == "targets" and self.motion.file is not None:
+            raise rule_error([("motion.file", "per-vertex target files are for handles, not whole obstacles")])
+        return self
+
+
+class DirichletConfig(_Model):
+    """§4.3 boundary-condition settings: when a bound vertex counts as on target, the penalty κ_B, and what
+    a step that ends with unmet targets does."""
+
+    tolerance: PosFloat = 1e-2  # × d̂ (or absolute with tolerance_mode = "absolute")
+    tolerance_mode: Literal["dhat", "absolute"] = "dhat"
+    kappa_initial: PosFloat = 1e4
+    max_doublings: Annotated[int, Field(ge=0, le=60)] = 24
+    on_unmet: Literal["warn", "error"] = "warn"

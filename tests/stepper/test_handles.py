@@ -1,0 +1,262 @@
+"""§4.3 Dirichlet targets and §4.5 handles / kinematic obstacles, end to end and in parts.
+
+Scenes are small (a 20×2×2 beam, a thin slab); every collision scene checks every accepted Newton iterate
+with the independent certificate (``check_every_iterate``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from idp.api import simulate
+from idp.errors import IntersectingInputError, SceneError
+from idp.mesh.placement import rotation_matrix
+from idp.scene.build import build_scene
+from idp.scene.load import scene_from_dict
+from idp.stepper.dirichlet import DirichletTargets
+from idp.stepper.motions import Keyframe, Keyframes, Rotate, Translate
+
+H = 0.04**2
+BEAM = {"shape": "tet_box", "lo": [-0.5, -0.05, -0.05], "hi": [0.5, 0.05, 0.05], "resolution": [20, 2, 2]}
+LEFT = {"box": [[0, 0, 0], [0.02, 1, 1]], "relative": True}
+RIGHT = {"box": [[0.98, 0, 0], [1, 1, 1]], "relative": True}
+
+
+def beam_scene(handles, *, steps=5, extra_objects=(), fixed=True, **top):
+    obj = {
+        "name": "beam",
+        "generate": BEAM,
+        "material": {"youngs_modulus": 1e5, "poisson_ratio": 0.3},
+        "handles": handles,
+    }
+    if fixed:
+        obj["fixed"] = [LEFT]
+    d = {
+        "name": "beam",
+        "time": {"h": H, "steps": steps},
+        "solver": {"newton_tol": 1e-2, "check_every_iterate": True},
+        "contact": {"dhat": 1e-3},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [obj, *extra_objects],
+    }
+    d.update(top)
+    return scene_from_dict(d)
+
+
+def certified(res):
+    for r in res.step_records:
+        assert r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"], r["step"]
+    return res.step_records
+
+
+# -- §4.3: quota, penalty, hold ------------------------------------------------------------------------
+
+
+def test_quota_reaches_the_target_by_subdividing_the_remaining_path(tmp_path):
+    offset = [0.0, 0.3, 0.0]
+    s = beam_scene([{"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": offset, "quota": 5}}])
+    built = build_scene(s)
+    tip = built.system.conditions[0].handles[0]
+    x0 = built.system.x[tip.vertices].copy()
+    res = simulate(s, tmp_path, progress=False)
+    recs = certified(res)
+    assert all(r["dirichlet"]["met"] for r in recs)
+    # after the quota the tip sits exactly on the final target; before it, on the subdivided path
+    np.testing.assert_allclose(res.x[tip.vertices], x0 + offset, rtol=0, atol=1e-12)
+    assert [r["dirichlet"]["residual_max"] for r in recs] == [0.0] * 5
+
+
+def test_penalty_doubles_near_convergence_and_is_dropped_once_the_targets_are_met():
+    masses = np.ones(4)
+    bc = DirichletTargets(masses, 2, tolerance=1e-6, kappa_initial=10.0)
+    x = np.zeros((4, 2))
+    bc.set_targets(np.array([1, 2]), np.array([[1.0, 0.0], [0.0, 1.0]]))
+    x1 = bc.begin(x, lambda x, P: 0.5)  # only half of the move is feasible
+    np.testing.assert_allclose(x1[[1, 2]], [[0.5, 0.0], [0.0, 0.5]])
+    assert not bc.met and not bc.settled and bc.penalty_value(x1) > 0
+    np.testing.assert_allclose(bc.penalty_hessian_diagonal().reshape(4, 2)[[1, 2]], 10.0)
+    # far from convergence: nothing changes; near convergence with targets unmet: κ_B doubles
+    assert bc.after_iterate(x1, False, lambda x, P: 1.0) == (x1, False)
+    x2 = x1.copy()
+    x2[[1, 2]] = [[0.9, 0.0], [0.0, 0.9]]
+    _, changed = bc.after_iterate(x2, True, lambda x, P: 1.0)
+    assert changed and bc.kappa == 20.0 and bc.doublings == 1
+    # within tolerance: snapped exactly onto the targets, held, penalty gone
+    x3 = x2.copy()
+    x3[[1, 2]] = [[1.0 - 1e-7, 0.0], [0.0, 1.0]]
+    x4, changed = bc.after_iterate(x3, False, lambda x, P: 1.0)
+    assert changed and bc.met and bc.settled
+    np.testing.assert_array_equal(x4[[1, 2]], bc.targets)  # a copy of the targets: identity by construction
+    assert bc.penalty_value(x4) == 0.0 and not bc.penalty_hessian_diagonal().any()
+    held = bc.held_dofs().reshape(4, 2)
+    assert held[[1, 2]].all() and not held[[0, 3]].any()
+
+
+def test_blocked_targets_stop_the_doubling():
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[1.0]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    x[0] = 0.5
+    assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]  # first doubling
+    x[0] = 0.502  # less than 1 % closer after the doubling: blocked
+    assert bc.after_iterate(x, True, lambda x, P: 0.0) == (x, False)
+    assert bc.settled and not bc.met and bc.report(x, 1e-3)["blocked"]
+
+
+def test_handle_pushed_into_an_obstacle_keeps_injectivity_and_reports_the_residual(tmp_path):
+    block = {
+        "name": "block",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
+    }
+    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 2}}
+    s = beam_scene([tip], steps=3, extra_objects=[block])
+    res = simulate(s, tmp_path, progress=False)
+    recs = certified(res)
+    last = recs[-1]["dirichlet"]
+    assert not last["met"] and last["blocked"]
+    # the tip stops below the block (y = 0.12), 0.3 - 0.07 short of its target
+    assert last["residual_max"] == pytest.approx(0.23, abs=0.01)
+    assert last["residual_max_over_dhat"] == pytest.approx(last["residual_max"] / 1e-3)
+    assert res.summary["steps_with_unmet_targets"] == 3
+    assert min(r["min_distance"] for r in recs) > 0
+
+
+def test_unmet_targets_can_stop_the_run(tmp_path):
+    block = {
+        "name": "block",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
+    }
+    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
+    s = beam_scene([tip], steps=3, extra_objects=[block], dirichlet={"on_unmet": "error"})
+    from idp.errors import SolverError
+
+    with pytest.raises(SolverError, match="Dirichlet targets unmet"):
+        simulate(s, tmp_path, progress=False)
+    assert (tmp_path / "checkpoint.npz").exists()  # the certified step is kept, resumable
+
+
+# -- §4.5: scripted handles and kinematic obstacles -------------------------------------------------
+
+
+def test_rotated_handles_reach_their_targets(tmp_path):
+    # both caps turn about z through the beam's centre line ends: the beam bends into an arc
+    steps, rate = 5, 90.0  # 90°/s · 5 · 0.04 s = 18°
+    left = {
+        "name": "l",
+        "select": LEFT,
+        "motion": {"type": "rotate", "axis": [0, 0, 1], "center": [-0.5, 0, 0], "degrees_per_second": -rate},
+    }
+    right = {
+        "name": "r",
+        "select": RIGHT,
+        "motion": {"type": "rotate", "axis": [0, 0, 1], "center": [0.5, 0, 0], "degrees_per_second": rate},
+    }
+    s = beam_scene([left, right], steps=steps, fixed=False)
+    built = build_scene(s)
+    hs = built.system.conditions[0].handles
+    X = [built.system.x[h.vertices].copy() for h in hs]
+    res = simulate(s, tmp_path, progress=False)
+    recs = certified(res)
+    assert all(r["dirichlet"]["met"] for r in recs)
+    for h, X0, sign, c in zip(hs, X, (-1, 1), (-0.5, 0.5), strict=True):
+        R = rotation_matrix((0, 0, 1), sign * rate * steps * 0.04)
+        want = (X0 - [c, 0, 0]) @ R.T + [c, 0, 0]
+        np.testing.assert_allclose(res.x[h.vertices], want, rtol=0, atol=1e-9)
+
+
+def test_fast_kinematic_obstacle_does_not_tunnel(tmp_path):
+    # a plate moving 0.4 per step (8× the slab's thickness) hits a slab whose top is fixed
+    slab = {
+        "name": "slab",
+        "generate": {"shape": "tet_box", "lo": [-0.3, 0.0, -0.3], "hi": [0.3, 0.05, 0.3], "resolution": [4, 1, 4]},
+        "material": {"youngs_modulus": 1e4, "poisson_ratio": 0.3},
+        "fixed": [{"box": [[0, 0.9, 0], [1, 1, 1]], "relative": True}],
+    }
+    plate = {
+        "name": "plate",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-0.1, -0.2, -0.1], "hi": [0.1, -0.15, 0.1], "resolution": 1},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, 10.0, 0.0]}},
+    }
+    d = {
+        "time": {"h": H, "steps": 2},
+        "solver": {"check_every_iterate": True},
+        "contact": {"dhat": 1e-3},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [slab, plate],
+    }
+    res = simulate(scene_from_dict(d), tmp_path, progress=False)
+    recs = certified(res)
+    assert recs[-1]["dirichlet"]["blocked"] and not recs[-1]["dirichlet"]["met"]
+    plate, slab = res.x[res.parts[1].vertex_ids], res.x[res.parts[0].vertex_ids]
+    above = slab[(np.abs(slab[:, 0]) <= 0.1) & (np.abs(slab[:, 2]) <= 0.1)]
+    assert above.size and plate[:, 1].max() < above[:, 1].min()  # below the slab it pushes: no tunnelling
+    assert plate[:, 1].max() - plate[:, 1].min() == pytest.approx(0.05, rel=1e-9)  # moved rigidly
+
+
+def test_motions():
+    X = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    np.testing.assert_allclose(Translate(np.array([0.0, 0.0, 1.0])).targets(X, 0.5), X + [0, 0, 0.5])
+    R = Rotate(90.0, np.zeros(3), np.array([0.0, 0.0, 1.0])).targets(X, 1.0)
+    np.testing.assert_allclose(R, [[0.0, 1.0, 0.0], [-2.0, 0.0, 0.0]], atol=1e-15)
+    k0 = Keyframe(0.0, np.zeros(3), np.zeros(3), np.ones(1))
+    k1 = Keyframe(1.0, np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, np.pi / 2]), np.ones(1))
+    kf = Keyframes([k0, k1], np.zeros(3))
+    np.testing.assert_allclose(kf.targets(X, 0.5)[:, 2], 1.0)
+    np.testing.assert_allclose(kf.targets(X, 2.0), [[0.0, 1.0, 2.0], [-2.0, 0.0, 2.0]], atol=1e-15)
+    smooth = Keyframes([k0, k1], np.zeros(3), smooth=True)
+    assert smooth.targets(X, 0.25)[0, 2] < kf.targets(X, 0.25)[0, 2]
+
+
+# -- bad input ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("handles", "match"),
+    [
+        ([{"name": "a", "select": {"box": [[2, 2, 2], [3, 3, 3]]}}], r"objects\[0\]\.handles\[0\].*matches no vertex"),
+        ([{"name": "a", "select": {"indices": [5, 100000]}}], r"index 100000 out of range"),
+        ([{"name": "a", "select": LEFT}], r"pins"),
+        (
+            [
+                {"name": "a", "select": RIGHT},
+                {"name": "b", "select": RIGHT, "motion": {"type": "translate", "velocity": [0, 1, 0]}},
+            ],
+            r"handles 'beam\.a' and 'beam\.b' overlap",
+        ),
+    ],
+)
+def test_bad_handles_are_named(handles, match):
+    with pytest.raises(SceneError, match=match):
+        build_scene(beam_scene(handles))
+
+
+def test_targets_file_with_the_wrong_vertex_count(tmp_path):
+    f = tmp_path / "t.npy"
+    np.save(f, np.zeros((3, 3)))
+    h = [{"name": "tip", "select": RIGHT, "motion": {"type": "targets", "file": str(f)}}]
+    with pytest.raises(SceneError, match=r"handles\[0\].*targets for 3 vertices but the selection has 9"):
+        build_scene(beam_scene(h))
+
+
+def test_schema_rejects_inconsistent_motions():
+    with pytest.raises(SceneError, match="degrees_per_second"):
+        beam_scene([{"name": "a", "select": RIGHT, "motion": {"type": "rotate", "axis": [0, 0, 1]}}])
+    with pytest.raises(SceneError, match="axis"):
+        beam_scene([{"name": "a", "select": RIGHT, "motion": {"type": "rotate", "degrees_per_second": 1.0}}])
+    with pytest.raises(SceneError, match="end"):
+        beam_scene([{"name": "a", "select": RIGHT, "start": 5, "end": 5}])
+
+
+def test_kinematic_obstacle_starting_inside_a_body_is_refused():
+    plate = {
+        "name": "plate",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-0.1, -0.2, -0.2], "hi": [0.1, 0.2, 0.2], "resolution": 1},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, 1.0, 0.0]}},
+    }
+    with pytest.raises(IntersectingInputError):
+        build_scene(beam_scene([], extra_objects=[plate]))
