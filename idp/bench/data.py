@@ -1,31 +1,5 @@
-"""Where the paper's own meshes live: ``$IDP_DATA`` or ``../shared/data`` (never copied into the repo)."""
+"""The paper's data folder for the benchmarks (see :mod:`idp.paper_data`)."""
 
-from __future__ import annotations
+from idp.paper_data import find_data_dir, require_data_dir
 
-import os
-from pathlib import Path
-
-
-def find_data_dir() -> Path | None:
-    """The data folder, or None when it is absent (tests and benchmarks then skip with a message)."""
-    env = os.environ.get("IDP_DATA")
-    candidates = [Path(env)] if env else []
-    here = Path(__file__).resolve()
-    candidates += [
-        Path.cwd() / ".." / "shared" / "data",
-        here.parents[3] / "shared" / "data",
-        here.parents[2] / "shared" / "data",
-    ]
-    for c in candidates:
-        if (c / "benchmark").is_dir():
-            return c.resolve()
-    return None
-
-
-def require_data_dir() -> Path:
-    d = find_data_dir()
-    if d is None:
-        raise FileNotFoundError(
-            "the paper's data was not found: set IDP_DATA to the folder holding benchmark/ (e.g. ../shared/data)"
-        )
-    return d
+__all__ = ["find_data_dir", "require_data_dir"]

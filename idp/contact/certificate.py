@@ -26,15 +26,22 @@ class Certificate:
     min_distance: float  # smallest surface distance among pairs closer than ``distance_query``; inf if none
     distance_query: float
     preserved_pairs: int  # intersecting input pairs allowed to persist (paper §5.5)
+    intersecting_pairs: int = 0  # counted (not a failure) when the scene runs without the barrier
+    guards_intersection: bool = True  # False: contact off, intersections are reported, not failed
+    guards_inversion: bool = True  # False: a non-barrier energy, inverted elements are reported, not failed
 
     @property
     def ok(self) -> bool:
-        return self.intersection_free and self.inversion_free
+        return (self.intersection_free or not self.guards_intersection) and (
+            self.inversion_free or not self.guards_inversion
+        )
 
     def describe(self) -> str:
         parts = []
         if not self.intersection_free:
-            parts.append("surfaces intersect")
+            parts.append(
+                "surfaces intersect" + (f" ({self.intersecting_pairs} pairs)" if self.intersecting_pairs else "")
+            )
         if not self.inversion_free:
             parts.append(f"{self.num_inverted} inverted element(s), min volume {self.min_element_volume:.3e}")
         return "; ".join(parts) or f"ok (min distance {self.min_distance:.3e})"
@@ -56,11 +63,16 @@ class Certifier:
         *,
         distance_query: float,
         require_inversion_free: bool = True,
+        require_intersection_free: bool = True,
         preserved_pairs: set | None = None,
     ):
+        """``require_intersection_free=False`` (a scene without the barrier, locally injective only): frames are
+        checked and their intersecting (edge, triangle) pairs counted, but intersections do not fail them;
+        ``require_inversion_free=False`` (non-barrier energies): inverted elements are counted, not failed."""
         self.dim = positions.shape[1]
         self.element_sets = element_sets
         self.require_inversion_free = require_inversion_free
+        self.require_intersection_free = require_intersection_free
         self.distance_query = float(distance_query)
         self.mesh = None
         self.surface = None if surface is None else np.asarray(surface, dtype=np.int64)
@@ -86,11 +98,16 @@ class Certifier:
             if vols.size:
                 min_vol = min(min_vol, float(vols.min()))
                 n_inv += int(np.count_nonzero(vols <= 0))
-        inversion_free = n_inv == 0 or not self.require_inversion_free
-        intersection_free, min_d = True, math.inf
+        inversion_free = n_inv == 0
+        intersection_free, min_d, n_pairs = True, math.inf, 0
         if self.mesh is not None:
             vs = np.ascontiguousarray(x[self.to_full], dtype=float)
-            if self.preserved:
+            if not self.require_intersection_free:
+                from idp.contact.intersections import intersecting_pair_keys
+
+                n_pairs = len(intersecting_pair_keys(x, self.surface))
+                intersection_free = n_pairs == 0
+            elif self.preserved:
                 from idp.contact.intersections import intersecting_pair_keys
 
                 now = intersecting_pair_keys(x, self.surface)
@@ -103,5 +120,14 @@ class Certifier:
                 if len(c):
                     min_d = math.sqrt(max(c.compute_minimum_distance(self.mesh, vs), 0.0))
         return Certificate(
-            intersection_free, inversion_free, n_inv, min_vol, min_d, self.distance_query, self.num_excluded
+            intersection_free,
+            inversion_free,
+            n_inv,
+            min_vol,
+            min_d,
+            self.distance_query,
+            self.num_excluded,
+            n_pairs,
+            self.require_intersection_free,
+            self.require_inversion_free,
         )

@@ -239,14 +239,22 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
         system.conditions.append(HandleSet(handles, bc, float(np.sqrt(scene.time.h)), pinned=fixed_deformable))
         meta["handles"] = [h.name for h in handles]
         meta["dirichlet_tolerance"] = tol
+    guards_inversion = all(getattr(b.elastic, "guards_inversion", True) for b in energies)
+    if not guards_inversion:
+        log.warning("non-barrier elastic energy: inversion is not guarded; the certificate reports inverted elements")
+    if not c.enabled:
+        log.warning("contact is off: only locally injective; the certificate counts intersecting surface pairs")
     certifier = Certifier(
         x,
-        all_surface if c.enabled else None,
+        all_surface,
         system.elements,
         distance_query=dhat,
-        require_inversion_free=True,
+        require_inversion_free=guards_inversion,
+        require_intersection_free=c.enabled,
         preserved_pairs=preserved,
     )
+    meta["guards_inversion"] = guards_inversion
+    meta["guards_intersection"] = bool(c.enabled)
     s = scene.solver
     newton = NewtonSettings(
         tol=s.newton_tol,
@@ -289,7 +297,7 @@ def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) 
                 motion_from_spec(hs.motion, key, dt),
                 start=hs.start,
                 end=hs.end,
-                after=hs.after,
+                release=hs.release,
                 select_on=hs.select_on,
             )
             try:
@@ -315,7 +323,6 @@ def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) 
             motion_from_spec(km.motion, f"{key}.motion", dt),
             start=km.start,
             end=km.end,
-            after="hold",
         )
         h.select(x)
         handles.append(h)

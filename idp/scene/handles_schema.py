@@ -6,7 +6,7 @@
     name = "left_cap"
     select = { box = [[0, 0, 0], [0.06, 1, 1]], relative = true }   # or sphere / indices
     motion = { type = "rotate", axis = [0, 0, 1], center = [0, 0.06, 0], degrees_per_second = -90 }
-    end = 26            # moves during steps 1..26, then holds (after = "hold") or lets go ("release")
+    end = 26            # moves during steps 1..26, then holds its last targets until `release` (or the end)
 
 Obstacles move as a whole with ``motion`` (kinematic obstacles). Vector lengths are checked against the
 scene's ``dim`` by :class:`idp.scene.schema.Scene`.
@@ -138,20 +138,31 @@ class MotionSpec(_Model):
 
 
 class HandleSpec(_Model):
-    """A handle: a vertex selection of this object driven by a motion during steps ``start``+1 … ``end``."""
+    """A handle: a vertex selection of this object driven by a motion during steps ``start``+1 … ``end``,
+    holding its last targets after ``end``, and letting its vertices go after step ``release``.
+
+    ``select_on = "current"`` selects on the shape at step ``start`` (e.g. a handle added on a deformed shape)."""
 
     name: Name
     select: SelectionSpec
     motion: MotionSpec = Field(default_factory=MotionSpec)
     start: NonNegInt = 0
     end: PosInt | None = None
-    after: Literal["hold", "release"] = "hold"
+    release: PosInt | None = None
     select_on: Literal["rest", "current"] = "rest"
 
     @model_validator(mode="after")
     def _range(self) -> HandleSpec:
+        probs = []
         if self.end is not None and self.end <= self.start:
-            raise rule_error([("end", f"must be > start ({self.start}), got {self.end}")])
+            probs.append(("end", f"must be > start ({self.start}), got {self.end}"))
+        if self.release is not None:
+            if self.release <= self.start:
+                probs.append(("release", f"must be > start ({self.start}), got {self.release}"))
+            elif self.end is not None and self.release < self.end:
+                probs.append(("release", f"must be >= end ({self.end}), got {self.release}"))
+        if probs:
+            raise rule_error(probs)
         return self
 
 

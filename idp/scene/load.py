@@ -16,6 +16,7 @@ from typing import Any, Union
 from pydantic import BaseModel, ValidationError
 
 from idp.errors import SceneError
+from idp.paper_data import DATA_PREFIX, resolve_data_path
 from idp.scene.schema import MODELS, Scene
 
 if sys.version_info >= (3, 11):
@@ -89,6 +90,12 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
     base = Path(base_dir).absolute() if base_dir is not None else Path.cwd()
     missing = []
     for i, ob in enumerate(scene.objects):
+        if ob.mesh is not None and str(ob.mesh).startswith(DATA_PREFIX):
+            try:
+                ob.mesh = resolve_data_path(str(ob.mesh))
+            except FileNotFoundError as exc:
+                missing.append(f"{source}: objects[{i}].mesh: {exc}")
+                continue
         if ob.mesh is not None:
             ob.mesh = _absolute(ob.mesh, base)
             if not ob.mesh.is_file():

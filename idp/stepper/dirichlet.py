@@ -67,6 +67,7 @@ class DirichletTargets:
         self.vertices = np.zeros(0, dtype=np.int64)
         self.targets = np.zeros((0, dim))
         self._dof = np.zeros(0, dtype=bool)  # per bound vertex: optimised (penalty), else kinematic (moves)
+        self.groups: list[tuple[str, int]] = []
         self._held = np.zeros(self.masses.size * dim, dtype=bool)
         self._reset()
 
@@ -81,8 +82,12 @@ class DirichletTargets:
         self.kinematic_moves = 0
 
     # -- set-up per step -----------------------------------------------------------------------
-    def set_targets(self, vertices: np.ndarray, targets: np.ndarray) -> None:
-        """The bound vertices (global ids, unique) and their targets x̃ for the next step."""
+    def set_targets(
+        self, vertices: np.ndarray, targets: np.ndarray, groups: list[tuple[str, int]] | None = None
+    ) -> None:
+        """The bound vertices (global ids, unique) and their targets x̃ for the next step; ``groups`` names
+        consecutive runs of them (name, count) so the report gives each handle's own residual."""
+        self.groups = list(groups or [])
         v = np.asarray(vertices, dtype=np.int64)
         t = np.asarray(targets, dtype=float).reshape(v.size, self.dim)
         dof = self.free_vertices[v]
@@ -213,8 +218,13 @@ class DirichletTargets:
         dist = self.distances(x)
         mx = float(dist.max(initial=0.0))
         rms = float(np.sqrt(np.mean(dist * dist))) if dist.size else 0.0
+        per_group, a = {}, 0
+        for name, count in self.groups:
+            per_group[name] = float(dist[a : a + count].max(initial=0.0))
+            a += count
         return {
             "bound_vertices": int(self.vertices.size),
+            "residual_max_per_handle": per_group,
             "met": bool(self._met),
             "blocked": bool(self._blocked),
             "residual_max": mx,

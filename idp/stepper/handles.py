@@ -28,8 +28,8 @@ class Handle:
 
     ``object_vertices``: the object's global vertex ids (selections are object-local). ``select_on``:
     ``"rest"`` selects once on the placed input shape, ``"current"`` on the shape at the step the handle
-    starts. ``after``: once past ``end`` the handle ``"hold"``s its last targets or ``"release"``s its
-    vertices. Targets at step k are ``motion(X, (k − start)·dt)``, X the positions at the start; a
+    starts. Past ``end`` the handle holds its last targets until ``release`` (inclusive; None = to the end of
+    the run), then lets its vertices go. Targets at step k are ``motion(X, (k − start)·dt)``, X the positions at the start; a
     :class:`~idp.stepper.motions.PathTargets` motion is reached over its quota by subdividing the remaining
     path (§4.3)."""
 
@@ -39,7 +39,7 @@ class Handle:
     motion: Motion
     start: int = 0
     end: int | None = None
-    after: str = "hold"
+    release: int | None = None
     select_on: str = "rest"
     vertices: np.ndarray | None = None  # global ids, set when selected
     X: np.ndarray | None = None  # positions when it started acting
@@ -56,9 +56,7 @@ class Handle:
         return self.vertices
 
     def active(self, step: int) -> bool:
-        if step <= self.start:
-            return False
-        return self.end is None or step <= self.end or self.after == "hold"
+        return self.start < step and (self.release is None or step <= self.release)
 
     def targets(self, step: int, x: np.ndarray, dt: float) -> np.ndarray:
         """Targets of step ``step`` (1-based) given the current positions ``x`` (the start of that step)."""
@@ -126,7 +124,8 @@ class HandleSet:
                 f"handles {names[0]!r} and {names[1]!r} both act on vertex {shared} at step {step}: overlapping "
                 "handles would pull it to two targets (end one of them earlier or make the selections disjoint)"
             )
-        self.constraint.set_targets(v, np.concatenate(targets))
+        groups = [(h.name, int(vs.size)) for h, vs in zip(owner, verts, strict=True)]
+        self.constraint.set_targets(v, np.concatenate(targets), groups)
 
     def after_step(self, system, step: int, x: np.ndarray) -> None:
         self.constraint.relax()
@@ -151,8 +150,8 @@ def check_static_overlaps(handles: list[Handle], num_steps: int) -> None:
     fixed = [h for h in handles if h.select_on == "rest" and h.vertices is not None]
     for i, a in enumerate(fixed):
         for b in fixed[i + 1 :]:
-            a_end = num_steps if (a.end is None or a.after == "hold") else a.end
-            b_end = num_steps if (b.end is None or b.after == "hold") else b.end
+            a_end = num_steps if a.release is None else a.release
+            b_end = num_steps if b.release is None else b.release
             if max(a.start, b.start) >= min(a_end, b_end):
                 continue
             shared = np.intersect1d(a.vertices, b.vertices)
