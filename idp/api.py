@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 from idp.scene.build import build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
@@ -29,8 +32,13 @@ def simulate(
     progress: bool = True,
     resume: bool = False,
     check_every_iterate: bool | None = None,
+    targets: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> RunResult:
-    """Build the scene, run its artificial time steps, write frames/stats/picture, return the result."""
+    """Build the scene, run its artificial time steps, write frames/stats/picture, return the result.
+
+    ``targets(step, x)``: Dirichlet targets streamed from code (paper §4.5), called before each step with the
+    current positions (n, d) of the whole scene; it returns (global vertex ids, (k, d) targets) or None.
+    They are resolved like a scene's handles (feasible move, adaptive penalty, hold once met)."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
@@ -38,7 +46,11 @@ def simulate(
     resolved = resolved_scene_dict(scene)
     (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
     (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
-    built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps)
+    built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
+    if targets is not None:
+        from idp.stepper.handles import HandleSet
+
+        next(c for c in built.system.conditions if isinstance(c, HandleSet)).stream = targets
     built.run.progress = progress
     built.run.resume = resume
     dofs_per_node = scene.dim

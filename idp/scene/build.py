@@ -78,12 +78,17 @@ def _vector(v, dim: int) -> np.ndarray:
     return np.full(dim, float(a)) if a.ndim == 0 else a
 
 
-def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | None = None) -> BuiltScene:
+def build_scene(
+    scene, *, check_every_iterate: bool | None = None, steps: int | None = None, with_handles: bool = False
+) -> BuiltScene:
     """Load/generate and place every object, pick pinned DOFs, set up energies, contact and the certificate.
 
     Input that intersects is refused (IntersectingInputError naming the pairs) unless
     ``contact.preserve_input_intersections`` is set, in which case those pairs are excluded from the
-    barrier, CCD and certificate, and every other pair stays guarded (paper §5.5)."""
+    barrier, CCD and certificate, and every other pair stays guarded (paper §5.5).
+
+    ``with_handles``: set up the Dirichlet machinery even when the scene has no handles (for targets streamed
+    from code, :attr:`idp.stepper.handles.HandleSet.stream`)."""
     dim = scene.dim
     deformables, obstacles = [], []
     for i, obj in enumerate(scene.objects):
@@ -222,7 +227,7 @@ def build_scene(scene, *, check_every_iterate: bool | None = None, steps: int | 
     }
     handles = _build_handles(scene, deformables, kinematic, bodies, x, pinned, np.sqrt(scene.time.h))
     system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
-    if handles:
+    if handles or with_handles:
         dc = scene.dirichlet
         tol = dc.tolerance * dhat if dc.tolerance_mode == "dhat" else dc.tolerance
         bc = DirichletTargets(

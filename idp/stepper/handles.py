@@ -10,6 +10,7 @@ vertex of an obstacle surface: its move is CCD-checked like any other bound move
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,6 +101,8 @@ class HandleSet:
     constraint: DirichletTargets
     dt: float
     pinned: np.ndarray | None = None  # (n,) vertices pinned by `fixed`: a handle may not select them
+    #: targets streamed from user code: ``stream(step, x) -> (global vertex ids, (k, d) targets)`` or None
+    stream: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None
 
     def before_step(self, system, step: int, x: np.ndarray) -> None:
         verts, targets, owner = [], [], []
@@ -111,7 +114,21 @@ class HandleSet:
                 raise SceneError(f"handle {h.name!r} selects vertices that `fixed` pins (step {step})")
             verts.append(h.vertices)
             targets.append(t)
-            owner.append(h)
+            owner.append(h.name)
+        if self.stream is not None:
+            got = self.stream(step, x)
+            if got is not None:
+                sv = np.asarray(got[0], dtype=np.int64).ravel()
+                st = np.asarray(got[1], dtype=float)
+                if st.shape != (sv.size, x.shape[1]):
+                    raise SceneError(
+                        f"streamed targets at step {step}: {sv.size} vertex ids but targets of shape {st.shape}"
+                    )
+                if sv.size and (sv.min() < 0 or sv.max() >= x.shape[0]):
+                    raise SceneError(f"streamed targets at step {step}: vertex id out of range [0, {x.shape[0]})")
+                verts.append(sv)
+                targets.append(st)
+                owner.append("streamed")
         if not verts:
             self.constraint.set_targets(np.zeros(0, np.int64), np.zeros((0, x.shape[1])))
             return
@@ -119,12 +136,12 @@ class HandleSet:
         uniq, _first, counts = np.unique(v, return_index=True, return_counts=True)
         if np.any(counts > 1):
             shared = int(uniq[np.flatnonzero(counts > 1)[0]])
-            names = [h.name for h, vs in zip(owner, verts, strict=True) if np.any(vs == shared)]
+            names = [name for name, vs in zip(owner, verts, strict=True) if np.any(vs == shared)]
             raise SceneError(
                 f"handles {names[0]!r} and {names[1]!r} both act on vertex {shared} at step {step}: overlapping "
                 "handles would pull it to two targets (end one of them earlier or make the selections disjoint)"
             )
-        groups = [(h.name, int(vs.size)) for h, vs in zip(owner, verts, strict=True)]
+        groups = [(name, int(vs.size)) for name, vs in zip(owner, verts, strict=True)]
         self.constraint.set_targets(v, np.concatenate(targets), groups)
 
     def after_step(self, system, step: int, x: np.ndarray) -> None:

@@ -260,3 +260,18 @@ def test_kinematic_obstacle_starting_inside_a_body_is_refused():
     }
     with pytest.raises(IntersectingInputError):
         build_scene(beam_scene([], extra_objects=[plate]))
+
+
+def test_targets_streamed_from_code(tmp_path):
+    s = beam_scene([], steps=4)
+    built = build_scene(s)
+    x0 = built.system.x
+    tip = np.flatnonzero(x0[:, 0] >= 0.49)
+
+    def lift(step, x):  # the tip goes up 0.02 per step
+        return tip, x0[tip] + [0.0, 0.02 * step, 0.0]
+
+    res = simulate(s, tmp_path, progress=False, targets=lift)
+    recs = certified(res)
+    assert all(r["dirichlet"]["met"] for r in recs)
+    np.testing.assert_allclose(res.x[tip], x0[tip] + [0.0, 0.08, 0.0], rtol=0, atol=1e-12)
