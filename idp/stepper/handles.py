@@ -30,9 +30,9 @@ class Handle:
     ``object_vertices``: the object's global vertex ids (selections are object-local). ``select_on``:
     ``"rest"`` selects once on the placed input shape, ``"current"`` on the shape at the step the handle
     starts. Past ``end`` the handle holds its last targets until ``release`` (inclusive; None = to the end of
-    the run), then lets its vertices go. Targets at step k are ``motion(X, (k − start)·dt)``, X the positions at the start; a
-    :class:`~idp.stepper.motions.PathTargets` motion is reached over its quota by subdividing the remaining
-    path (§4.3)."""
+    the run), then lets its vertices go. Targets at step k are ``motion(X, (k − start)·dt)``, X the positions
+    at the start; a :class:`~idp.stepper.motions.PathTargets` motion is reached over its quota by subdividing
+    the remaining path (§4.3)."""
 
     name: str
     object_vertices: np.ndarray

@@ -199,7 +199,7 @@ def test_fast_kinematic_obstacle_does_not_tunnel(tmp_path):
 
 def test_motions():
     X = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
-    np.testing.assert_allclose(Translate(np.array([0.0, 0.0, 1.0])).targets(X, 0.5), X + [0, 0, 0.5])
+    np.testing.assert_allclose(Translate(np.array([0.0, 0.0, 1.0])).targets(X, 0.5), X + np.array([0.0, 0.0, 0.5]))
     R = Rotate(90.0, np.zeros(3), np.array([0.0, 0.0, 1.0])).targets(X, 1.0)
     np.testing.assert_allclose(R, [[0.0, 1.0, 0.0], [-2.0, 0.0, 0.0]], atol=1e-15)
     k0 = Keyframe(0.0, np.zeros(3), np.zeros(3), np.ones(1))
