@@ -85,6 +85,21 @@ def hourglass(data: Path, which: str = "bunny", steps: int = 30, newton_tol: flo
     return scene_from_dict(d)
 
 
+PAPER_SCENES = Path(__file__).resolve().parents[1] / "scenes" / "paper"
+
+
+def paper_scene(file: str, steps: int | None = None):
+    """A committed paper scene (``idp/scenes/paper``) with the benchmark's output settings (frames every 10 steps,
+    OBJ only, no picture)."""
+    from idp.scene.load import load_scene
+
+    scene = load_scene(PAPER_SCENES / file)
+    scene.output.every, scene.output.obj, scene.output.vtu, scene.output.png = 10, True, False, False
+    if steps is not None:
+        scene.time.steps = steps
+    return scene
+
+
 def suite(data: Path) -> dict:
     """name -> (scene factory, tier) ; the quick tier runs in well under 15 minutes on 2 cores."""
     return {
@@ -97,4 +112,5 @@ def suite(data: Path) -> dict:
         "tube_in_tube": (lambda: tube_in_tube(data), "full"),
         "hourglass_bunny": (lambda: hourglass(data, "bunny"), "full"),
         "hourglass_octocat": (lambda: hourglass(data, "octocat"), "full"),
+        "bar_twist": (lambda: paper_scene("fig10_bar_elastic.toml"), "full"),
     }

@@ -95,6 +95,7 @@ class FrameWriter:
         surf_type = "triangle" if self.dim == 3 else "line"
         self._cells: list[tuple[str, np.ndarray]] = []
         self._cell_part: list[np.ndarray] = []
+        self._block_part: list[int] = []
         for i, p in enumerate(self.parts):
             if p.kind == "deformable":
                 block = (vol_type, p.elements)
@@ -104,6 +105,7 @@ class FrameWriter:
                 continue
             self._cells.append(block)
             self._cell_part.append(np.full(block[1].shape[0], i, dtype=np.int32))
+            self._block_part.append(i)
 
     # ------------------------------------------------------------------ writing
     def _check_x(self, x: np.ndarray) -> np.ndarray:
@@ -131,7 +133,12 @@ class FrameWriter:
             chunks.append(faces)
         return "".join(chunks)
 
-    def _vtu_mesh(self, x: np.ndarray, point_data: dict[str, np.ndarray] | None) -> meshio.Mesh:
+    def _vtu_mesh(
+        self,
+        x: np.ndarray,
+        point_data: dict[str, np.ndarray] | None,
+        cell_data: dict[str, dict[int, np.ndarray]] | None = None,
+    ) -> meshio.Mesh:
         n = x.shape[0]
         pts = np.zeros((n, 3))
         pts[:, : self.dim] = x
@@ -149,8 +156,18 @@ class FrameWriter:
             if self.dim == 2 and a.ndim == 2 and a.shape[1] == 2:
                 a = np.concatenate([a, np.zeros((n, 1), dtype=a.dtype)], axis=1)  # ParaView vectors are 3D
             pdata[name] = np.ascontiguousarray(a)
-        cell_data = {"part_id": list(self._cell_part)} if self._cells else {}
-        return meshio.Mesh(pts, list(self._cells), point_data=pdata, cell_data=cell_data)
+        cdata = {"part_id": list(self._cell_part)} if self._cells else {}
+        for name, per_part in (cell_data or {}).items():
+            blocks = []
+            for (_, cells), i in zip(self._cells, self._block_part, strict=True):
+                a = per_part.get(i)
+                if a is None:
+                    a = np.zeros(cells.shape[0])
+                elif a.shape[0] != cells.shape[0]:
+                    raise ValueError(f"cell_data[{name!r}] part {i}: {a.shape[0]} values for {cells.shape[0]} cells")
+                blocks.append(np.ascontiguousarray(a, dtype=float))
+            cdata[name] = blocks
+        return meshio.Mesh(pts, list(self._cells), point_data=pdata, cell_data=cdata)
 
     def _pvd_text(self) -> str:
         lines = [
@@ -170,11 +187,13 @@ class FrameWriter:
         x: np.ndarray,
         time: float | None = None,
         point_data: dict[str, np.ndarray] | None = None,
+        cell_data: dict[str, dict[int, np.ndarray]] | None = None,
     ) -> dict[str, str]:
         """Write frame ``frame`` at positions ``x`` (n, dim); return {"obj"|"vtu"|"pvd": relative path}.
 
         The PVD timestep is ``time`` when given, else ``frame``. Writing a frame number again
-        replaces its files and its PVD entry.
+        replaces its files and its PVD entry. ``cell_data``: VTU cell fields, per field {part index: one value
+        per element of that part} (parts left out get zeros).
         """
         if self._closed:
             raise RuntimeError("FrameWriter.write called after close()")
@@ -193,7 +212,7 @@ class FrameWriter:
             written["obj"] = rel
         if self.write_vtu:
             rel = f"vtu/{stem}.vtu"
-            mesh = self._vtu_mesh(x, point_data)
+            mesh = self._vtu_mesh(x, point_data, cell_data)
             target = self.out_dir / rel
             tmp = target.with_name(target.name + ".tmp")
             meshio.write(tmp, mesh, file_format="vtu", binary=True, compression="zlib")

@@ -78,6 +78,16 @@ def _load_condition_states(ck, system) -> None:
             cond.load_state({k[len(pre) :]: ck[k] for k in ck.files if k.startswith(pre)})
 
 
+def _cell_data(system) -> dict | None:
+    """VTU cell fields offered by the per-step conditions (e.g. accumulated plastic strain)."""
+    out: dict = {}
+    for cond in system.conditions:
+        if hasattr(cond, "cell_data"):
+            for name, per_part in cond.cell_data().items():
+                out.setdefault(name, {}).update(per_part)
+    return out or None
+
+
 def _fill_fraction(system, x) -> float | None:
     cage = system.meta.get("cage_volume")
     if not cage:
@@ -216,14 +226,14 @@ def run_simulation(
                     f"(rms {bc_report['residual_rms']:.3e}), kappa_B {bc_report['kappa_B']:.3g}"
                 )
                 if settings.on_unmet_targets == "error":
-                    writer.write(step, x, time=step * math.sqrt(system.h))
+                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
                     _save_checkpoint(checkpoint, x, step, system)
                     raise SolverError(msg)
                 log.warning(msg)
             last = step == settings.steps
             stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
             if last or stationary or step % settings.write_every == 0:
-                writer.write(step, x, time=step * math.sqrt(system.h))
+                writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
             _save_checkpoint(checkpoint, x, step, system)
             if progress is not None:
                 post = {"its": res.iterations, "contacts": res.num_contacts}
@@ -237,7 +247,7 @@ def run_simulation(
                 progress.update(1)
             if stationary:
                 if step % settings.write_every != 0:
-                    writer.write(step, x, time=step * math.sqrt(system.h))
+                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
                 stopped_reason = f"stationary (max |dx| {max_move:.2e} < {settings.stationary_tol:g})"
                 break
     except KeyboardInterrupt:
