@@ -180,6 +180,7 @@ def build_scene(
         )
         masses += lumped_masses(N, elements, el.volumes, mat.density)
         energies.append(Body(obj.name, ids, el, sched))
+    material_conditions = _material_conditions(scene, energies, parts, x)
     pinned = np.concatenate(fixed)
     free_mask = np.repeat(~pinned, dim)
     if not free_mask.any():
@@ -227,6 +228,7 @@ def build_scene(
     }
     handles = _build_handles(scene, deformables, kinematic, bodies, x, pinned, np.sqrt(scene.time.h))
     system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
+    system.conditions.extend(material_conditions)
     if handles or with_handles:
         dc = scene.dirichlet
         tol = dc.tolerance * dhat if dc.tolerance_mode == "dhat" else dc.tolerance
@@ -280,6 +282,47 @@ def build_scene(
         on_unmet_targets=scene.dirichlet.on_unmet,
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+
+
+def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.ndarray) -> list:
+    """Rest-shape scale scripts (into each body's schedule), bakes, material stages and plasticity (§4.5)."""
+    from idp.energies.plasticity import VonMisesPlasticity
+    from idp.stepper.conditions import Bake, MaterialStages, Plasticity
+    from idp.stepper.rest_shape import ScaleScript
+
+    objs = [(i, ob) for i, ob in enumerate(scene.objects) if ob.kind == "deformable"]
+    part_index = {p.name: k for k, p in enumerate(parts)}
+    out: list = []
+    for (i, ob), body in zip(objs, bodies, strict=True):
+        el = body.elastic
+        for j, rs in enumerate(ob.rest_scripts):
+            if rs.type == "bake":
+                out.append(Bake(body, rs.step))
+                continue
+            region = None
+            if rs.region is not None:
+                centroids = x[el.elements].mean(axis=1)
+                picked = selection_from_spec(rs.region).select(centroids) if len(centroids) else np.zeros(0, int)
+                if picked.size == 0:
+                    raise SceneError(f"objects[{i}].rest_scripts[{j}].region: selects no element (by centroid)")
+                region = np.zeros(el.elements.shape[0], dtype=bool)
+                region[picked] = True
+            rate = _vector(rs.rate, scene.dim)
+            body.schedule.scripts.append(ScaleScript(rs.start, rs.end, rate, region))
+        if ob.material_stages:
+            mat = ob.material
+            stages = [(st.youngs_modulus, st.poisson_ratio) for st in ob.material_stages]
+            out.append(
+                MaterialStages(
+                    body, [st.start for st in ob.material_stages], stages, (mat.youngs_modulus, mat.poisson_ratio)
+                )
+            )
+        if ob.plasticity is not None:
+            if not hasattr(el, "deformation_gradients"):
+                raise SceneError(f"objects[{i}].plasticity: this build has no plasticity support")
+            model = VonMisesPlasticity(ob.plasticity.yield_stress, ob.plasticity.hardening)
+            out.append(Plasticity(body, model, part_index[ob.name]))
+    return out
 
 
 def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) -> list[Handle]:

@@ -21,12 +21,15 @@ from pydantic import (
     model_validator,
 )
 
-from idp.scene.handles_schema import (
+from idp.scene.conditions_schema import (
     DirichletConfig,
     HandleSpec,
     KeyframeSpec,
     KinematicSpec,
+    MaterialStageSpec,
     MotionSpec,
+    PlasticitySpec,
+    RestScriptSpec,
     RotationSpec,
     SelectionSpec,
     SphereSpec,
@@ -449,6 +452,9 @@ class SceneObject(_Model):
     fixed: list[FixedSelector] = Field(default_factory=list)
     handles: list[HandleSpec] = Field(default_factory=list)
     motion: KinematicSpec | None = None  # obstacles only: a kinematic (moving) obstacle
+    plasticity: PlasticitySpec | None = None
+    material_stages: list[MaterialStageSpec] = Field(default_factory=list)
+    rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
 
     @field_validator("scale", mode="before")
     @classmethod
@@ -470,8 +476,17 @@ class SceneObject(_Model):
                 probs.append(("fixed", "only allowed on deformable objects (obstacles are fixed entirely)"))
             if self.handles:
                 probs.append(("handles", "only allowed on deformable objects (move an obstacle with `motion`)"))
+            for key in ("plasticity",):
+                if getattr(self, key) is not None:
+                    probs.append((key, "only allowed on deformable objects"))
+            for key in ("material_stages", "rest_scripts"):
+                if getattr(self, key):
+                    probs.append((key, "only allowed on deformable objects"))
         elif self.motion is not None:
             probs.append(("motion", "only allowed on obstacles (drive a deformable object with `handles`)"))
+        starts = [st.start for st in self.material_stages]
+        if any(b <= a for a, b in zip(starts[:-1], starts[1:], strict=True)):
+            probs.append(("material_stages", f"start steps must increase strictly (got {starts})"))
         names = [h.name for h in self.handles]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -586,6 +601,12 @@ class Scene(_Model):
                 _motion_vectors(f"{q}.motion", hd.motion, d, probs)
             if ob.motion is not None:
                 _motion_vectors(f"{p}.motion.motion", ob.motion.motion, d, probs)
+            for j, rs in enumerate(ob.rest_scripts):
+                if isinstance(rs.rate, list):
+                    vec(f"{p}.rest_scripts[{j}].rate", rs.rate)
+                if rs.region is not None and rs.region.box is not None:
+                    vec(f"{p}.rest_scripts[{j}].region.box[0]", rs.region.box[0])
+                    vec(f"{p}.rest_scripts[{j}].region.box[1]", rs.region.box[1])
             if ob.generate is not None and ob.generate.dim != d:
                 probs.append(
                     (
@@ -631,6 +652,9 @@ MODELS: dict[str, type[BaseModel]] = {
         HandleSpec,
         KinematicSpec,
         DirichletConfig,
+        PlasticitySpec,
+        MaterialStageSpec,
+        RestScriptSpec,
         *GENERATORS.values(),
     )
 }

@@ -14,19 +14,9 @@ from idp.output.parts import Part
 from idp.solver.assembly import FixedPatternAssembler, FreeDofMap
 from idp.solver.constraint import StepConstraint
 from idp.solver.contact_pattern import GrowingBlockPattern
+from idp.stepper.rest_shape import RestShapeSchedule
 
-
-@dataclass
-class RestShapeSchedule:
-    """Rest-shape scripting (paper §4.5 "Shape"): scale(k) = base · (1 + rate · min(k, steps))."""
-
-    base: np.ndarray
-    growth_rate: float = 0.0
-    growth_steps: int = 0
-
-    def factor(self, step: int) -> np.ndarray:
-        k = min(max(step, 0), self.growth_steps)
-        return self.base * (1.0 + self.growth_rate * k)
+__all__ = ["Body", "RestShapeSchedule", "System", "WeightedTerm"]
 
 
 @dataclass
@@ -97,7 +87,7 @@ class System:
     def set_rest_shape_for_step(self, step: int) -> None:
         """Apply every body's rest-shape schedule for the step about to be solved (1-based)."""
         for b in self.bodies:
-            b.elastic.set_rest_scale(b.schedule.factor(step))
+            b.schedule.apply(b.elastic, step)
 
     def elastic_value(self, x: np.ndarray) -> float:
         """E(x) without contact: Σ weight · term(x) over every element term, plus the linear terms."""

@@ -1,4 +1,5 @@
-"""Scene-file models of handles, motions and Dirichlet settings (paper §4.3, §4.5).
+"""Scene-file models of the time-varying conditions (paper §4.3, §4.5): handles, motions, Dirichlet settings,
+kinematic obstacles, rest-shape scripts, material stages and plasticity.
 
 ::
 
@@ -191,3 +192,61 @@ class DirichletConfig(_Model):
     kappa_initial: PosFloat = 1e4
     max_doublings: Annotated[int, Field(ge=0, le=60)] = 24
     on_unmet: Literal["warn", "error"] = "warn"
+
+
+class PlasticitySpec(_Model):
+    """Von Mises plasticity (paper §4.5): ``yield_stress`` τ_Y (stress units, like Young's modulus) and linear
+    isotropic ``hardening`` H; the return mapping runs at the start of every step."""
+
+    yield_stress: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    hardening: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+
+
+class MaterialStageSpec(_Model):
+    """From step ``start`` + 1 on, the body's Young's modulus and Poisson ratio (paper §7.5 stiffness stages)."""
+
+    start: NonNegInt
+    youngs_modulus: PosFloat
+    poisson_ratio: Annotated[float, Field(gt=-1, lt=0.5)] = 0.4
+
+
+class RestScriptSpec(_Model):
+    """A rest-shape script (paper §4.5 "Shape").
+
+    - ``type = "scale"``: during steps ``start``+1 … ``end`` the rest shape of the elements in ``region``
+      (elements whose centroid the selection picks; all when omitted) scales by 1 + ``rate``·steps (per axis);
+    - ``type = "bake"``: at the end of step ``step`` the current shape becomes the rest shape."""
+
+    type: Literal["scale", "bake"]
+    start: NonNegInt = 0
+    end: PosInt | None = None
+    rate: Scale | None = None
+    region: SelectionSpec | None = None
+    step: PosInt | None = None
+
+    @model_validator(mode="after")
+    def _fields(self) -> RestScriptSpec:
+        probs = []
+        if self.type == "scale":
+            if self.rate is None:
+                probs.append(("rate", "required for type = 'scale'"))
+            if self.end is None:
+                probs.append(("end", "required for type = 'scale'"))
+            elif self.end <= self.start:
+                probs.append(("end", f"must be > start ({self.start}), got {self.end}"))
+            elif self.rate is not None:
+                rates = self.rate if isinstance(self.rate, list) else [self.rate]
+                final = [1.0 + r * (self.end - self.start) for r in rates]
+                if min(final) <= 0:
+                    probs.append(("rate", f"makes the scale factor {min(final):g} <= 0 by step {self.end}"))
+            if self.step is not None:
+                probs.append(("step", "only used by type = 'bake'"))
+        else:
+            if self.step is None:
+                probs.append(("step", "required for type = 'bake'"))
+            for k in ("rate", "region", "end"):
+                if getattr(self, k) is not None:
+                    probs.append((k, "only used by type = 'scale'"))
+        if probs:
+            raise rule_error(probs)
+        return self
