@@ -1,10 +1,33 @@
-"""Per-element kernels for simplex distortion energies (neo-Hookean, symmetric Dirichlet).
+"""Per-element kernels for simplex distortion energies.
+
+Models: neo-Hookean and symmetric Dirichlet (barriers, +inf for det F <= 0), ARAP and
+St. Venant-Kirchhoff (non-barrier: finite for every F, inverted elements included).
 
 For element t with local vertices x_0..x_d: F = Ds Dm^{-1}, Ds = [x_1-x_0, ..., x_d-x_0],
 energy v_t Psi(F), gradient v_t dPsi/dF pulled back to the d+1 nodes, and the Hessian built
 from the analytic eigensystem of an isotropic energy written in signed singular values
 (scaling block + per-pair flip/twist modes), each eigenvalue optionally clamped at 0 so the
 element block is PSD without a (d+1)d x (d+1)d eigen-decomposition.
+
+Eigensystem (Smith et al. 2019, "Analytic eigensystems for isotropic distortion energies"):
+with F = U diag(s) V^T (rotation-variant SVD, s_d signed) and psi_i = dpsi/ds_i, the d x d
+scaling block is S = d^2 psi / ds^2 on the modes U diag(q) V^T, and each pair i < j has a flip
+mode U (e_i e_j^T + e_j e_i^T) V^T / sqrt 2 with eigenvalue (psi_i - psi_j) / (s_i - s_j) and a
+twist mode U (e_i e_j^T - e_j e_i^T) V^T / sqrt 2 with eigenvalue (psi_i + psi_j) / (s_i + s_j).
+Per model, in closed forms that stay finite at s_i = s_j:
+
+* NH (mu, lambda; c = mu - lambda ln J): S_ii = mu + (c + lambda)/s_i^2, S_ij = lambda/(s_i s_j),
+  flip = mu + c/(s_i s_j), twist = mu - c/(s_i s_j).
+* SD (weight w): S_ii = 2w(1 + 3/s_i^4), S_ij = 0, flip = 2w(1 + (s_i^2 + s_i s_j + s_j^2)/(s_i s_j)^3),
+  twist = 2w(1 - (s_i^2 - s_i s_j + s_j^2)/(s_i s_j)^3).
+* ARAP, psi = mu sum (s_i - 1)^2 = mu ||F - R||^2 (R = U V^T): S = 2 mu I, flip = 2 mu,
+  twist = 2 mu (1 - 2/(s_i + s_j)).  s_i + s_j = 0 (an inverted element whose two smallest
+  signed singular values cancel) is where R jumps and the exact Hessian does not exist; the sum is
+  floored at ``ARAP_TWIST_FLOOR`` so the exact block stays finite (hugely negative), and the
+  projected twist eigenvalue is 0 whenever s_i + s_j <= 2 anyway.
+* StVK, psi = mu ||E||^2 + lambda/2 (tr E)^2, E = (F^T F - I)/2; with h = lambda (|F|^2 - d)/2:
+  S_ii = mu (3 s_i^2 - 1) + h + lambda s_i^2, S_ij = lambda s_i s_j,
+  flip = mu (s_i^2 + s_i s_j + s_j^2 - 1) + h, twist = mu (s_i^2 - s_i s_j + s_j^2 - 1) + h.
 
 Local DOF order of an element block: [x0_0, .., x0_{d-1}, x1_0, ...] (vertex-major).
 
@@ -24,6 +47,11 @@ from idp._small_dense import symmetric_eigen_jacobi
 
 NEO_HOOKEAN = 0
 SYMMETRIC_DIRICHLET = 1
+ARAP = 2
+STVK = 3
+
+#: Floor of s_i + s_j in the ARAP twist eigenvalue 2 mu (1 - 2/(s_i + s_j)) (see the module docstring).
+ARAP_TWIST_FLOOR = 1e-12
 
 #: Elements per parallel work item; scratch arrays are allocated once per chunk.
 CHUNK = 64
@@ -196,9 +224,37 @@ def _sigma_eigensystem(
 ) -> None:
     """S = d^2 psi / d sigma^2; flip[i,j] = (psi_i - psi_j)/(s_i - s_j), twist[i,j] = (psi_i + psi_j)/(s_i + s_j).
 
-    Closed forms that stay finite at s_i = s_j.  NH: a = mu, b = lambda; SD: a = weight w.
+    Closed forms that stay finite at s_i = s_j (module docstring).  NH, StVK: a = mu, b = lambda;
+    SD: a = weight w; ARAP: a = mu.  lnJ is used by NH only.
     """
-    if model == NEO_HOOKEAN:
+    if model == ARAP:
+        w2 = 2.0 * a
+        for i in range(d):
+            for j in range(d):
+                if i == j:
+                    S[i, i] = w2
+                else:
+                    S[i, j] = 0.0
+                    flip[i, j] = w2
+                    twist[i, j] = w2 * (1.0 - 2.0 / max(sig[i] + sig[j], ARAP_TWIST_FLOOR))
+    elif model == STVK:
+        mu = a
+        la = b
+        i2 = 0.0
+        for i in range(d):
+            i2 += sig[i] * sig[i]
+        h = 0.5 * la * (i2 - d)
+        for i in range(d):
+            si = sig[i]
+            for j in range(d):
+                sj = sig[j]
+                if i == j:
+                    S[i, i] = mu * (3.0 * si * si - 1.0) + h + la * si * si
+                else:
+                    S[i, j] = la * si * sj
+                    flip[i, j] = mu * (si * si + si * sj + sj * sj - 1.0) + h
+                    twist[i, j] = mu * (si * si - si * sj + sj * sj - 1.0) + h
+    elif model == NEO_HOOKEAN:
         mu = a
         la = b
         cc = mu - la * lnJ
@@ -289,6 +345,7 @@ def _element_chunk(
     Kept out of the prange loop so numba's parallel passes see a tiny loop (fast compile)."""
     d = x.shape[1]
     k = (d + 1) * d
+    barrier = model == NEO_HOOKEAN or model == SYMMETRIC_DIRICHLET
     Ds = np.empty((d, d))
     F = np.empty((d, d))
     Fi = np.empty((d, d))
@@ -297,6 +354,7 @@ def _element_chunk(
     U = np.empty((d, d))
     V = np.empty((d, d))
     A = np.empty((d, d))
+    Eg = np.empty((d, d))
     W = np.empty((d, d))
     S = np.empty((d, d))
     Q = np.empty((d, d))
@@ -320,7 +378,7 @@ def _element_chunk(
                     acc += Ds[r, a] * dm_inv[t, a, c]
                 F[r, c] = acc
         J = _det(F, d)
-        if not (J > 0.0):
+        if barrier and not (J > 0.0):
             energy_out[t] = np.inf
             if want_grad:
                 for i in range(k):
@@ -330,22 +388,48 @@ def _element_chunk(
                     for j in range(k):
                         hess_out[t, i, j] = np.nan
             continue
-        _inverse(F, d, J, Fi)
-        lnJ = math.log(J)
-        nF = 0.0
-        for r in range(d):
-            for c in range(d):
-                nF += F[r, c] * F[r, c]
         pa = param_a[t]
         pb = param_b[t]
-        if model == NEO_HOOKEAN:
-            psi = 0.5 * pa * (nF - d) - pa * lnJ + 0.5 * pb * lnJ * lnJ
-        else:
-            nFi = 0.0
+        lnJ = 0.0
+        have_svd = False
+        trE = 0.0
+        if barrier:
+            _inverse(F, d, J, Fi)
+            lnJ = math.log(J)
+            nF = 0.0
             for r in range(d):
                 for c in range(d):
-                    nFi += Fi[r, c] * Fi[r, c]
-            psi = pa * (nF + nFi - 2.0 * d)
+                    nF += F[r, c] * F[r, c]
+            if model == NEO_HOOKEAN:
+                psi = 0.5 * pa * (nF - d) - pa * lnJ + 0.5 * pb * lnJ * lnJ
+            else:
+                nFi = 0.0
+                for r in range(d):
+                    for c in range(d):
+                        nFi += Fi[r, c] * Fi[r, c]
+                psi = pa * (nF + nFi - 2.0 * d)
+        elif model == ARAP:
+            # mu ||F - R||^2 = mu sum (s_i - 1)^2 with signed singular values
+            _rotation_svd(F, d, U, sig, V, A)
+            have_svd = True
+            psi = 0.0
+            for i in range(d):
+                psi += (sig[i] - 1.0) * (sig[i] - 1.0)
+            psi *= pa
+        else:
+            # StVK: Eg = (F^T F - I) / 2
+            nE = 0.0
+            for r in range(d):
+                for c in range(d):
+                    acc = 0.0
+                    for a in range(d):
+                        acc += F[a, r] * F[a, c]
+                    if r == c:
+                        acc -= 1.0
+                    Eg[r, c] = 0.5 * acc
+                    nE += Eg[r, c] * Eg[r, c]
+                trE += Eg[r, r]
+            psi = pa * nE + 0.5 * pb * trE * trE
         energy_out[t] = v * psi
         if want_grad:
             # P = dPsi/dF using F^{-T}[r,c] = Fi[c,r]
@@ -354,7 +438,7 @@ def _element_chunk(
                 for r in range(d):
                     for c in range(d):
                         P[r, c] = pa * F[r, c] + cc * Fi[c, r]
-            else:
+            elif model == SYMMETRIC_DIRICHLET:
                 # P = 2w (F - F^{-T} F^{-1} F^{-T}); (F^{-T}F^{-1}F^{-T})[r,c] = sum Fi[a,r] Fi[a,b] Fi[c,b]
                 for r in range(d):
                     for c in range(d):
@@ -363,6 +447,22 @@ def _element_chunk(
                             for b2 in range(d):
                                 acc += Fi[a2, r] * Fi[a2, b2] * Fi[c, b2]
                         P[r, c] = 2.0 * pa * (F[r, c] - acc)
+            elif model == ARAP:
+                # P = 2 mu (F - U V^T)
+                for r in range(d):
+                    for c in range(d):
+                        acc = 0.0
+                        for a2 in range(d):
+                            acc += U[r, a2] * V[c, a2]
+                        P[r, c] = 2.0 * pa * (F[r, c] - acc)
+            else:
+                # StVK: P = F (2 mu E + lambda tr(E) I)
+                for r in range(d):
+                    for c in range(d):
+                        acc = 0.0
+                        for a2 in range(d):
+                            acc += F[r, a2] * Eg[a2, c]
+                        P[r, c] = 2.0 * pa * acc + pb * trE * F[r, c]
             # PW = v P Dm^{-T}
             for r in range(d):
                 for a in range(d):
@@ -378,7 +478,8 @@ def _element_chunk(
             for i in range(k):
                 for j in range(k):
                     H[i, j] = 0.0
-            _rotation_svd(F, d, U, sig, V, A)
+            if not have_svd:
+                _rotation_svd(F, d, U, sig, V, A)
             _sigma_eigensystem(model, pa, pb, sig, lnJ, d, S, flip, twist)
             direct = (not project) or _is_pd(S, d)
             if not direct:
@@ -471,9 +572,10 @@ def element_terms(
 ) -> None:
     """Fill per-element energy (m,), gradient (m,k) and Hessian (m,k,k) (the last two if asked).
 
-    Elements with det F <= 0 get energy +inf and NaN gradient / Hessian (barrier energies
-    are undefined there; callers keep iterates feasible with the inversion filter).
-    NH: param_a = mu, param_b = lambda; SD: param_a = weight.  Parallel over chunks of
+    For the barrier models (NH, SD) elements with det F <= 0 get energy +inf and NaN gradient /
+    Hessian (undefined there; callers keep iterates feasible with the inversion filter); ARAP and
+    StVK are finite everywhere.  NH, StVK: param_a = mu, param_b = lambda; SD: param_a = weight;
+    ARAP: param_a = mu (param_b unused).  Parallel over chunks of
     CHUNK elements; every element writes only its own output rows (no races).
     """
     m = elements.shape[0]
@@ -548,38 +650,64 @@ def element_terms_reference(
     param_b: np.ndarray,
     project: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Plain numpy (energy (m,), gradient (m,k), Hessian (m,k,k)); assumes all det F > 0."""
+    """Plain numpy (energy (m,), gradient (m,k), Hessian (m,k,k)); the barrier models assume all det F > 0.
+
+    Energy and stress are computed from F directly (ARAP's rotation from LAPACK's SVD); only the
+    eigenvalue formulas are shared with the kernel, the modes are assembled through dF/dx."""
     m, d, _ = dm_inv.shape
     xe = x[elements]  # (m, d+1, d)
     Ds = np.transpose(xe[:, 1:, :] - xe[:, :1, :], (0, 2, 1))
     F = Ds @ dm_inv
-    J = np.linalg.det(F)
-    lnJ = np.log(J)
-    Fi = np.linalg.inv(F)
-    FiT = np.transpose(Fi, (0, 2, 1))
-    nF = np.einsum("mij,mij->m", F, F)
     a = param_a
     b = param_b
-    if model == NEO_HOOKEAN:
-        psi = 0.5 * a * (nF - d) - a * lnJ + 0.5 * b * lnJ**2
-        P = a[:, None, None] * (F - FiT) + (b * lnJ)[:, None, None] * FiT
-    else:
-        nFi = np.einsum("mij,mij->m", Fi, Fi)
-        psi = a * (nF + nFi - 2 * d)
-        P = 2 * a[:, None, None] * (F - FiT @ Fi @ FiT)
-    B = deformation_map(dm_inv)
-    grad = volumes[:, None] * np.einsum("mrk,mr->mk", B, P.reshape(m, d * d))
-
     U, sig, Vt = np.linalg.svd(F)
     V = np.transpose(Vt, (0, 2, 1))
     for M in (U, V):
         neg = np.linalg.det(M) < 0
         M[neg, :, -1] *= -1.0
         sig[neg, -1] *= -1.0
+    lnJ = np.zeros(m)
+    if model in (NEO_HOOKEAN, SYMMETRIC_DIRICHLET):
+        J = np.linalg.det(F)
+        lnJ = np.log(J)
+        Fi = np.linalg.inv(F)
+        FiT = np.transpose(Fi, (0, 2, 1))
+        nF = np.einsum("mij,mij->m", F, F)
+    if model == NEO_HOOKEAN:
+        psi = 0.5 * a * (nF - d) - a * lnJ + 0.5 * b * lnJ**2
+        P = a[:, None, None] * (F - FiT) + (b * lnJ)[:, None, None] * FiT
+    elif model == SYMMETRIC_DIRICHLET:
+        nFi = np.einsum("mij,mij->m", Fi, Fi)
+        psi = a * (nF + nFi - 2 * d)
+        P = 2 * a[:, None, None] * (F - FiT @ Fi @ FiT)
+    elif model == ARAP:
+        R = U @ Vt
+        psi = a * np.einsum("mij,mij->m", F - R, F - R)
+        P = 2 * a[:, None, None] * (F - R)
+    else:
+        Eg = 0.5 * (np.transpose(F, (0, 2, 1)) @ F - np.eye(d))
+        trE = np.trace(Eg, axis1=1, axis2=2)
+        psi = a * np.einsum("mij,mij->m", Eg, Eg) + 0.5 * b * trE**2
+        P = F @ (2 * a[:, None, None] * Eg + (b * trE)[:, None, None] * np.eye(d))
+    B = deformation_map(dm_inv)
+    grad = volumes[:, None] * np.einsum("mrk,mr->mk", B, P.reshape(m, d * d))
+
     si = sig[:, :, None]
     sj = sig[:, None, :]
     eye = np.eye(d, dtype=bool)[None]
-    if model == NEO_HOOKEAN:
+    if model == ARAP:
+        w2 = 2 * a[:, None, None]
+        S = np.where(eye, w2, 0.0)
+        flip = w2 + 0 * si * sj
+        twist = w2 * (1 - 2 / np.maximum(si + sj, ARAP_TWIST_FLOOR))
+    elif model == STVK:
+        mu = a[:, None, None]
+        la = b[:, None, None]
+        h = 0.5 * la * ((sig**2).sum(axis=1)[:, None, None] - d)
+        S = np.where(eye, mu * (3 * si * sj - 1) + h + la * si * sj, la * si * sj)
+        flip = mu * (si**2 + si * sj + sj**2 - 1) + h
+        twist = mu * (si**2 - si * sj + sj**2 - 1) + h
+    elif model == NEO_HOOKEAN:
         cc = (a - b * lnJ)[:, None, None]
         S = np.where(eye, a[:, None, None] + (cc + b[:, None, None]) / (si * sj), b[:, None, None] / (si * sj))
         flip = a[:, None, None] + cc / (si * sj)
@@ -606,7 +734,7 @@ def element_terms_reference(
                 modes.append(M)
                 lams.append(ev[:, i, j])
     K = np.zeros((m, d * d, d * d))
-    for M, lam in zip(modes, lams):
+    for M, lam in zip(modes, lams, strict=True):
         G = (U @ M @ Vt).reshape(m, d * d)
         if project:
             lam = np.maximum(lam, 0.0)

@@ -1,10 +1,17 @@
-"""Barrier distortion energies E(x) = sum_t v_t Psi(F_t) on tetrahedra (3D) and triangles (2D).
+"""Distortion energies E(x) = sum_t v_t Psi(F_t) on tetrahedra (3D) and triangles (2D).
 
-Models (paper §4.4): neo-Hookean and symmetric Dirichlet, both -> +inf as det F -> 0+, so a
-line search with the inversion filter (``idp.energies.inversion_filter``) keeps every element
-positively oriented.  Material parameters are per element so several materials coexist.
-Element Hessians are made PSD per element through the analytic singular-value eigensystem
-(see ``_elastic_kernels``), as projected Newton needs.
+Models (paper §4.4): the barriers neo-Hookean and symmetric Dirichlet, both -> +inf as
+det F -> 0+, so a line search with the inversion filter (``idp.energies.inversion_filter``)
+keeps every element positively oriented; and the non-barrier ARAP (mu ||F - R||^2) and
+St. Venant-Kirchhoff (mu ||E||^2 + lambda/2 tr(E)^2), finite for inverted elements too, which
+therefore do not guard inversion.  Material parameters are per element so several materials
+coexist.  Element Hessians are made PSD per element through the analytic singular-value
+eigensystem (see ``_elastic_kernels``), as projected Newton needs.
+
+Rest frames (paper §4.5): F_t = Ds_t Dm_t^{-1} with the effective rest frame Dm_t = T_t Dm_base_t.
+The base frames start as the input rest shape; ``bake`` replaces them by the current shape and
+plasticity deforms them; the rest transform T (``set_rest_scale`` / ``set_rest_transform``, the
+scripted growth and shape changes) is applied on top and reset by ``bake``.
 """
 
 from __future__ import annotations
@@ -14,7 +21,15 @@ import numpy as np
 from idp.energies import _elastic_kernels as _k
 from idp.energies.inversion_filter import max_inversion_free_step
 
-MODELS = {"neo_hookean": _k.NEO_HOOKEAN, "symmetric_dirichlet": _k.SYMMETRIC_DIRICHLET}
+MODELS = {
+    "neo_hookean": _k.NEO_HOOKEAN,
+    "symmetric_dirichlet": _k.SYMMETRIC_DIRICHLET,
+    "arap": _k.ARAP,
+    "stvk": _k.STVK,
+}
+
+#: Models that are barriers (+inf for det F <= 0) and so need the inversion filter in the line search.
+BARRIER_MODELS = frozenset({"neo_hookean", "symmetric_dirichlet"})
 
 
 def rest_frames(rest_vertices: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +98,12 @@ class ElasticEnergy:
     ``elements`` (m, d+1) index the global vertex array; ``rest_vertices`` is the global rest
     array (n, d).  ``x`` arguments are (n, d) (or flat (n*d,)) float64.  Gradients are flat
     (n*d,) interleaved [x0, y0, (z0), x1, ...]; element Hessians are (m, k, k), k = (d+1) d, in
-    vertex-major local order matching ``element_dofs()``.  For elements with det F <= 0 the
-    value is +inf and gradient / Hessian are NaN (only feasible states are meaningful).
+    vertex-major local order matching ``element_dofs()``.  For the barrier models (NH, SD), elements
+    with det F <= 0 have value +inf and NaN gradient / Hessian (only feasible states are meaningful);
+    ARAP and StVK are finite there.
+
+    Material: NH and StVK use (mu, lambda) from (E, nu); SD uses ``weight`` (default mu/4); ARAP uses
+    mu, or ``weight`` when given.  ``weight`` is ignored by NH and StVK.
     """
 
     def __init__(
@@ -104,54 +123,155 @@ class ElasticEnergy:
         self.elements = np.ascontiguousarray(np.asarray(elements, dtype=np.int64))
         self.Dm_inv, self.volumes = rest_frames(X, self.elements)
         self.Dm_inv = np.ascontiguousarray(self.Dm_inv)
-        self._Dm0 = _rest_matrices(X, self.elements)
+        self._Dm_base = _rest_matrices(X, self.elements)
+        self._transform: np.ndarray | None = None  # None = identity; else (d,d) or (m,d,d)
         self.num_vertices = X.shape[0]
         self.dim = X.shape[1]
+        m = self.elements.shape[0]
+        self.set_material(youngs_modulus, poisson_ratio, weight)
+        self._dofs = (self.elements[:, :, None] * self.dim + np.arange(self.dim)[None, None, :]).reshape(
+            m, (self.dim + 1) * self.dim
+        )
+
+    def set_material(
+        self,
+        youngs_modulus: float | np.ndarray,
+        poisson_ratio: float | np.ndarray,
+        weight: float | np.ndarray | None = None,
+    ) -> None:
+        """(Re)set the material, scalars or per element (m,): stiffness per stage (§7.5) without rebuilding."""
         m = self.elements.shape[0]
         mu, lam = lame_parameters(
             _per_element(youngs_modulus, m, "youngs_modulus"), _per_element(poisson_ratio, m, "poisson_ratio")
         )
         self.mu = np.asarray(mu, dtype=np.float64).reshape(m)
         self.lam = np.asarray(lam, dtype=np.float64).reshape(m)
-        if self._model_id == _k.NEO_HOOKEAN:
+        if self._model_id in (_k.NEO_HOOKEAN, _k.STVK):
             self._pa, self._pb = self.mu, self.lam
-        else:
-            w = self.mu / 4.0 if weight is None else _per_element(weight, m, "weight")
-            if not np.all(np.isfinite(w) & (w > 0)):
-                raise ValueError("symmetric Dirichlet weight must be finite and > 0")
-            self.weight = np.ascontiguousarray(w)
-            self._pa, self._pb = self.weight, np.zeros(m)
-        self._dofs = (self.elements[:, :, None] * self.dim + np.arange(self.dim)[None, None, :]).reshape(
-            m, (self.dim + 1) * self.dim
-        )
+            return
+        default = self.mu / 4.0 if self._model_id == _k.SYMMETRIC_DIRICHLET else self.mu
+        w = default if weight is None else _per_element(weight, m, "weight")
+        if not np.all(np.isfinite(w) & (w > 0)):
+            raise ValueError(f"{self.model} weight must be finite and > 0")
+        self.weight = np.ascontiguousarray(w)
+        self._pa, self._pb = self.weight, np.zeros(m)
 
     #: Fraction of an element's current volume the inversion filter lets it shrink to along one step.
     inversion_eta: float = 0.1
 
     @property
     def guards_inversion(self) -> bool:
-        """True for barrier energies (→ +inf as det F → 0⁺): the line search must keep det F > 0."""
-        return True
+        """True for barrier energies (NH, SD: → +inf as det F → 0⁺): the line search must keep det F > 0.
+
+        False for ARAP and StVK, which are finite for inverted elements."""
+        return self.model in BARRIER_MODELS
 
     def max_step(self, x: np.ndarray, direction: np.ndarray) -> float:
         """Largest α ≤ 1 keeping every element's volume above ``inversion_eta`` × its current value along
         x + α·direction (Smith & Schaefer's filter); 1 for energies that do not guard inversion."""
         if not self.guards_inversion:
             return 1.0
-        return max_inversion_free_step(x, direction, self.elements, self.inversion_eta)
+        return max_inversion_free_step(self._x(x), direction, self.elements, self.inversion_eta)
 
     # ------------------------------------------------------------------ rest shape
-    def set_rest_scale(self, scale: float | np.ndarray) -> None:
-        """Rest shape = original rest shape scaled by ``scale`` (uniform, or per-axis (d,)).
+    @property
+    def rest_frames_inverse(self) -> np.ndarray:
+        """(m,d,d) inverses of the effective rest frames, Dm^{-1} = (T Dm_base)^{-1} (same array as ``Dm_inv``)."""
+        return self.Dm_inv
 
-        Dm_inv = inv(diag(scale) Dm0); the volume weights v_t keep their original values
-        (as the reference implementation does during growth)."""
+    @property
+    def base_rest_frames(self) -> np.ndarray:
+        """(m,d,d) base rest frames Dm_base (read-only view): the input rest shape, or the baked / plastic one."""
+        view = self._Dm_base.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def rest_transform(self) -> np.ndarray:
+        """The rest transform T applied on top of the base frames: (d,d) shared or (m,d,d) per element."""
+        if self._transform is None:
+            return np.eye(self.dim)
+        return self._transform.copy()
+
+    def _update_rest_frames(self) -> None:
+        """Dm_inv = inv(T Dm_base) (T = identity when unset)."""
+        Dm = self._Dm_base if self._transform is None else self._transform @ self._Dm_base
+        self.Dm_inv = np.ascontiguousarray(np.linalg.inv(Dm)) if len(Dm) else np.zeros_like(Dm)
+
+    def set_rest_scale(self, scale: float | np.ndarray) -> None:
+        """Rest shape = base rest shape scaled by ``scale`` (uniform, or per-axis (d,)).
+
+        Dm_inv = inv(diag(scale) Dm_base), i.e. ``set_rest_transform(diag(scale))``; the volume weights
+        v_t keep their values (as the reference implementation does during growth)."""
         s = np.asarray(scale, dtype=np.float64)
         if s.ndim == 0:
             s = np.full(self.dim, float(s))
         if s.shape != (self.dim,) or not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError(f"rest scale must be > 0, scalar or shape ({self.dim},), got {scale!r}")
-        self.Dm_inv = np.ascontiguousarray(np.linalg.inv(s[None, :, None] * self._Dm0))
+        self._transform = np.diag(s)
+        self._update_rest_frames()
+
+    def set_rest_transform(self, transform: np.ndarray) -> None:
+        """Rest frames Dm = T Dm_base with T (d,d) shared or (m,d,d) per element (anisotropic / per-region scale).
+
+        Replaces any previous scale or transform (it does not compose with it); T must be finite with
+        det T > 0 (orientation-preserving).  The volume weights keep their values, as in ``set_rest_scale``."""
+        T = np.array(transform, dtype=np.float64)
+        d, m = self.dim, self.elements.shape[0]
+        if T.shape not in ((d, d), (m, d, d)):
+            raise ValueError(f"rest transform must have shape ({d}, {d}) or ({m}, {d}, {d}), got {T.shape}")
+        if not np.all(np.isfinite(T)):
+            raise ValueError("rest transform must be finite")
+        det = np.linalg.det(T)
+        bad = np.flatnonzero(~(np.atleast_1d(det) > 0))
+        if bad.size:
+            where = "" if T.ndim == 2 else f" of element {int(bad[0])}"
+            raise ValueError(f"rest transform{where} must have det > 0, got {np.atleast_1d(det)[bad[0]]:.3e}")
+        self._transform = T
+        self._update_rest_frames()
+
+    def bake(self, x: np.ndarray) -> None:
+        """Make the shape ``x`` the rest shape (§4.5): base frames = current Ds, volume weights = current
+        volumes, rest transform reset to identity.  Raises ValueError naming the first element of ``x`` with
+        non-positive volume (a rest frame must be positively oriented)."""
+        xc = self._x(x)
+        if self.elements.shape[0]:
+            Dm_inv, vol = rest_frames(xc, self.elements)
+        else:
+            Dm_inv, vol = np.zeros((0, self.dim, self.dim)), np.zeros(0)
+        self._Dm_base = _rest_matrices(xc, self.elements)
+        self.volumes = np.ascontiguousarray(vol)
+        self._transform = None
+        self.Dm_inv = np.ascontiguousarray(Dm_inv)
+
+    def deform_rest_frames(self, G: np.ndarray, which: np.ndarray | None = None) -> None:
+        """Effective rest frames Dm ← G Dm per element, e.g. a plastic flow F_p (G (k,d,d) with det G > 0, for
+        the elements ``which`` (k,) indices, or all m elements when None; the others are left bit-for-bit).
+
+        Stored in the base frames as Dm_base ← T⁻¹ G T Dm_base so that a rest transform T set before stays
+        applied on top (and later transforms act on the deformed base).  The volume weights keep their
+        values (plastic flow is isochoric, det G = 1)."""
+        G = np.asarray(G, dtype=np.float64)
+        m, d = self.elements.shape[0], self.dim
+        idx = np.arange(m) if which is None else np.asarray(which, dtype=np.int64).reshape(-1)
+        if G.shape != (idx.size, d, d):
+            raise ValueError(f"rest-frame update must have shape ({idx.size}, {d}, {d}), got {G.shape}")
+        if idx.size == 0:
+            return
+        base = self._Dm_base[idx]
+        if self._transform is None:
+            new = G @ base
+        else:
+            T = self._transform if self._transform.ndim == 2 else self._transform[idx]
+            T = np.broadcast_to(T, (idx.size, d, d))
+            new = np.linalg.solve(T, G @ (T @ base))
+        self._Dm_base[idx] = new
+        Dm = new if self._transform is None else T @ new
+        self.Dm_inv[idx] = np.linalg.inv(Dm)
+
+    def deformation_gradients(self, x: np.ndarray) -> np.ndarray:
+        """(m,d,d) F = Ds Dm^{-1} per element at ``x``."""
+        return _rest_matrices(self._x(x), self.elements) @ self.Dm_inv
 
     # ------------------------------------------------------------------ evaluation
     def _x(self, x: np.ndarray) -> np.ndarray:
@@ -193,7 +313,7 @@ class ElasticEnergy:
         return np.bincount(self._dofs.ravel(), weights=g.ravel(), minlength=n)
 
     def value(self, x: np.ndarray) -> float:
-        """Total energy; +inf if any element has det F <= 0."""
+        """Total energy; +inf if a barrier model (NH, SD) has an element with det F <= 0."""
         e, _, _ = self._run(x, False, False, False)
         return float(e.sum())
 
