@@ -244,6 +244,20 @@ class ElasticEnergy:
         self._transform = None
         self.Dm_inv = np.ascontiguousarray(Dm_inv)
 
+    def set_base_rest_frames(self, base: np.ndarray, volumes: np.ndarray) -> None:
+        """Restore base rest frames and volume weights saved from :meth:`base_rest_frames` / ``volumes`` (a
+        checkpoint of a plastic or baked state); the current rest transform stays on top."""
+        base = np.array(base, dtype=np.float64)
+        vol = np.array(volumes, dtype=np.float64)
+        m, d = self.elements.shape[0], self.dim
+        if base.shape != (m, d, d) or vol.shape != (m,):
+            raise ValueError(
+                f"saved rest frames have shapes {base.shape}, {vol.shape}; this energy needs ({m}, {d}, {d})"
+            )
+        self._Dm_base = np.ascontiguousarray(base)
+        self.volumes = np.ascontiguousarray(vol)
+        self._update_rest_frames()
+
     def deform_rest_frames(self, G: np.ndarray, which: np.ndarray | None = None) -> None:
         """Effective rest frames Dm ← G Dm per element, e.g. a plastic flow F_p (G (k,d,d) with det G > 0, for
         the elements ``which`` (k,) indices, or all m elements when None; the others are left bit-for-bit).

@@ -318,9 +318,8 @@ def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.nda
                 )
             )
         if ob.plasticity is not None:
-            if not hasattr(el, "deformation_gradients"):
-                raise SceneError(f"objects[{i}].plasticity: this build has no plasticity support")
-            model = VonMisesPlasticity(ob.plasticity.yield_stress, ob.plasticity.hardening)
+            # classical (uniaxial) von Mises σ_Y → radius of the Frobenius-norm yield surface: √(2/3) σ_Y
+            model = VonMisesPlasticity(np.sqrt(2.0 / 3.0) * ob.plasticity.yield_stress, ob.plasticity.hardening)
             out.append(Plasticity(body, model, part_index[ob.name]))
     return out
 

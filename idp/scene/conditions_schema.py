@@ -195,8 +195,9 @@ class DirichletConfig(_Model):
 
 
 class PlasticitySpec(_Model):
-    """Von Mises plasticity (paper §4.5): ``yield_stress`` τ_Y (stress units, like Young's modulus) and linear
-    isotropic ``hardening`` H; the return mapping runs at the start of every step."""
+    """Von Mises plasticity (paper §4.5): the classical von Mises ``yield_stress`` σ_Y (uniaxial, stress units
+    like Young's modulus; the engine's Frobenius-norm radius is √(2/3)·σ_Y) and linear isotropic ``hardening``
+    H; the return mapping runs at the start of every step."""
 
     yield_stress: Annotated[float, Field(gt=0, allow_inf_nan=False)]
     hardening: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0

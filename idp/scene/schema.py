@@ -118,9 +118,13 @@ class OutputConfig(_Model):
 
 
 class Material(_Model):
-    """Elastic material of a deformable object."""
+    """Elastic material of a deformable object.
 
-    model: Literal["neo_hookean", "symmetric_dirichlet"] = "neo_hookean"
+    ``neo_hookean`` and ``symmetric_dirichlet`` are inversion barriers (every iterate inversion-free);
+    ``arap`` and ``stvk`` are not: the scene warns, contact stays guarded, and the certificate reports inverted
+    elements instead of failing for them."""
+
+    model: Literal["neo_hookean", "symmetric_dirichlet", "arap", "stvk"] = "neo_hookean"
     youngs_modulus: PosFloat = 1e4
     poisson_ratio: Annotated[float, Strict(), Field(gt=-1)] = 0.4
     density: PosFloat = 1000.0
@@ -149,8 +153,11 @@ class Material(_Model):
         if self.model == "symmetric_dirichlet":
             if self.weight is None:
                 self.weight = self.mu / 4.0
+        elif self.model == "arap":
+            if self.weight is None:
+                self.weight = self.mu
         elif self.weight is not None:
-            raise rule_error([("weight", 'only used by model = "symmetric_dirichlet"')])
+            raise rule_error([("weight", 'only used by model = "symmetric_dirichlet" or "arap"')])
         return self
 
 

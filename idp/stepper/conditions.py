@@ -17,7 +17,7 @@ from idp.energies.plasticity import VonMisesPlasticity
 
 def _rest_state(elastic) -> dict[str, np.ndarray]:
     """The base rest frames and volume weights of an elastic energy (changed by plasticity and bake)."""
-    return {"base": np.array(elastic.base_rest_frames()), "volumes": np.array(elastic.volumes)}
+    return {"base": np.array(elastic.base_rest_frames), "volumes": np.array(elastic.volumes)}
 
 
 def _load_rest_state(elastic, st: dict[str, np.ndarray]) -> None:
