@@ -87,7 +87,7 @@ class StepSolver:
         self.iterate_checks = 0
         self._constraint = None
         self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
-        self._row_cache: tuple[int, np.ndarray] | None = None
+        self._row_cache: tuple[np.ndarray, np.ndarray] | None = None  # (indptr, row of every entry)
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
                 wt.term.inversion_eta = settings.inversion_eta
@@ -212,9 +212,10 @@ class StepSolver:
         held = self._held
         if held is None:
             return H
-        if self._row_cache is None or self._row_cache[0] != H.nnz:
-            self._row_cache = (H.nnz, np.repeat(np.arange(H.shape[0]), np.diff(H.indptr)))
-        rows = self._row_cache[1]
+        cache = self._row_cache
+        if cache is None or cache[0].shape != H.indptr.shape or not np.array_equal(cache[0], H.indptr):
+            cache = self._row_cache = (H.indptr.copy(), np.repeat(np.arange(H.shape[0]), np.diff(H.indptr)))
+        rows = cache[1]
         cols = H.indices
         mask = (held[rows] | held[cols]) & (rows != cols)
         H.data[mask] = 0.0
