@@ -87,7 +87,7 @@ class StepSolver:
         self.iterate_checks = 0
         self._constraint = None
         self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
-        self._row_cache: tuple[np.ndarray, np.ndarray] | None = None  # (indptr, row of every entry)
+        self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
                 wt.term.inversion_eta = settings.inversion_eta
@@ -208,17 +208,25 @@ class StepSolver:
 
     def _hold(self, H: sp.csr_matrix) -> sp.csr_matrix:
         """Held DOFs (targets met, fixed handles): zero their rows and columns except the diagonal, so the
-        Newton direction is exactly 0 there (with their gradient entries zeroed) and the pattern is kept."""
+        Newton direction is exactly 0 there (with their gradient entries zeroed) and the pattern is kept.
+
+        The positions to zero are found once per (pattern, held set) and reused: the held set changes only
+        when targets are met, so an iteration costs one scatter of zeros."""
         held = self._held
         if held is None:
             return H
         cache = self._row_cache
-        if cache is None or cache[0].shape != H.indptr.shape or not np.array_equal(cache[0], H.indptr):
-            cache = self._row_cache = (H.indptr.copy(), np.repeat(np.arange(H.shape[0]), np.diff(H.indptr)))
-        rows = cache[1]
-        cols = H.indices
-        mask = (held[rows] | held[cols]) & (rows != cols)
-        H.data[mask] = 0.0
+        if (
+            cache is None
+            or cache[0].shape != H.indptr.shape
+            or not np.array_equal(cache[0], H.indptr)
+            or not np.array_equal(cache[1], held)
+        ):
+            rows = np.repeat(np.arange(H.shape[0]), np.diff(H.indptr))
+            cols = H.indices
+            positions = np.flatnonzero((held[rows] | held[cols]) & (rows != cols))
+            cache = self._row_cache = (H.indptr.copy(), held.copy(), positions)
+        H.data[cache[2]] = 0.0
         return H
 
     def _direction(self, H, g: np.ndarray, res: NewtonResult) -> np.ndarray:
