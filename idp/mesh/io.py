@@ -96,16 +96,35 @@ def _repeated_vertex(cells: np.ndarray) -> np.ndarray:
     return np.flatnonzero((s[:, 1:] == s[:, :-1]).any(axis=1))
 
 
-def _compact(vertices: np.ndarray, cells: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Drop vertices no cell references and re-index the cells."""
+def _compact(
+    vertices: np.ndarray, cells: np.ndarray, path: Path, groups: dict[str, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices no cell references and re-index the cells (and the vertex ``groups`` masks, in place)."""
     used = np.zeros(vertices.shape[0], dtype=bool)
     used[cells.ravel()] = True
     n_unused = int(vertices.shape[0] - np.count_nonzero(used))
     if n_unused == 0:
         return vertices, cells
     logger.info("%s: removed %d unreferenced vertices", path, n_unused)
+    for name in groups or {}:
+        groups[name] = groups[name][used]  # type: ignore[index]
     new_index = np.cumsum(used) - 1
     return vertices[used], new_index[cells]
+
+
+def _point_groups(mesh, n: int) -> dict[str, np.ndarray]:
+    """Vertex groups of a meshio mesh as (n,) bool masks: point sets, and 1-D integer/bool point fields."""
+    out: dict[str, np.ndarray] = {}
+    for name, idx in (getattr(mesh, "point_sets", None) or {}).items():
+        mask = np.zeros(n, dtype=bool)
+        idx = np.asarray(idx, dtype=np.int64).ravel()
+        mask[idx[(idx >= 0) & (idx < n)]] = True
+        out[str(name)] = mask
+    for name, arr in (mesh.point_data or {}).items():
+        a = np.asarray(arr)
+        if a.ndim == 1 and a.shape[0] == n and (a.dtype == bool or np.issubdtype(a.dtype, np.integer)):
+            out.setdefault(str(name), a != 0)
+    return out
 
 
 def _orient(
@@ -139,19 +158,26 @@ def _orient(
 
 
 def _volume(
-    vertices: np.ndarray, elements: np.ndarray, path: Path, fix_orientation: bool, validate: bool
+    vertices: np.ndarray,
+    elements: np.ndarray,
+    path: Path,
+    fix_orientation: bool,
+    validate: bool,
+    groups: dict[str, np.ndarray] | None = None,
 ) -> VolumeMesh:
     _check_indices(elements, vertices.shape[0], path, "element")
     if validate:
         rep = _repeated_vertex(elements)
         if rep.size:
             raise MeshError(f"{path}: {rep.size} degenerate elements repeat a vertex (element indices: {_list(rep)})")
-    vertices, elements = _compact(vertices, elements, path)
+    groups = dict(groups or {})
+    vertices, elements = _compact(vertices, elements, path, groups)
     elements = _orient(vertices, elements, path, fix_orientation, validate)
     return VolumeMesh(
         vertices=np.ascontiguousarray(vertices, dtype=np.float64),
         elements=np.ascontiguousarray(elements, dtype=np.int64),
         source=str(path),
+        point_groups={k: np.flatnonzero(v).astype(np.int64) for k, v in groups.items()},
     )
 
 
@@ -194,6 +220,7 @@ def read_mesh(
     ext = p.suffix.lower()
 
     lines = np.zeros((0, 2), np.int64)
+    groups: dict[str, np.ndarray] = {}
     if ext == ".obj":
         obj = read_obj(p)
         points, tets, tris = obj.vertices, np.zeros((0, 4), np.int64), obj.faces
@@ -203,6 +230,7 @@ def read_mesh(
         tets = _gather(m, _TET_TYPES, 4)
         tris = _gather(m, _TRI_TYPES, 3)
         lines = _gather(m, _LINE_TYPES, 2)
+        groups = _point_groups(m, m.points.shape[0])
     if tets.shape[0] == 0 and tris.shape[0] == 0 and lines.shape[0] == 0:
         raise MeshError(f"{p}: no usable cells (expected tetrahedra, triangles or 2D segments)")
     points = _check_vertices(points, p)
@@ -228,7 +256,7 @@ def read_mesh(
     if tets.shape[0] > 0:
         if points.shape[1] != 3:
             raise MeshError(f"{p}: tetrahedra need 3D vertex coordinates, got {points.shape[1]}D")
-        vol = _volume(points, tets, p, fix_orientation, validate)
+        vol = _volume(points, tets, p, fix_orientation, validate, groups)
         if kind == "surface":
             return SurfaceMesh(vol.vertices, boundary_faces(vol.elements), source=str(p))
         return vol
@@ -239,7 +267,7 @@ def read_mesh(
                 f"{p}: cannot read as a volume mesh: it has no tetrahedra and its triangles "
                 "are not planar (z != 0), so it is a surface"
             )
-        return _volume(points[:, :2].copy(), tris, p, fix_orientation, validate)
+        return _volume(points[:, :2].copy(), tris, p, fix_orientation, validate, groups)
     return _surface(points, tris, p, validate)
 
 

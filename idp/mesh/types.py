@@ -18,6 +18,8 @@ class VolumeMesh:
     vertices: np.ndarray
     elements: np.ndarray
     source: str = "<array>"
+    #: named vertex groups read from the file (point sets, or integer/bool point fields: nonzero = member)
+    point_groups: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def dim(self) -> int:

@@ -333,14 +333,18 @@ def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) 
 
     handles: list[Handle] = []
     ids_of = {obj.name: ids for obj, ids, _, _ in bodies}
-    for i, obj, _, _ in deformables:
+    for i, obj, mesh, _ in deformables:
         ids = ids_of[obj.name]
         for j, hs in enumerate(obj.handles):
             key = f"objects[{i}].handles[{j}]"
+            try:
+                selection = selection_from_spec(hs.select, getattr(mesh, "point_groups", None))
+            except SceneError as exc:
+                raise SceneError(f"{key} ({hs.name}): {exc}") from exc
             h = Handle(
                 f"{obj.name}.{hs.name}",
                 ids,
-                selection_from_spec(hs.select),
+                selection,
                 motion_from_spec(hs.motion, key, dt),
                 start=hs.start,
                 end=hs.end,

@@ -12,8 +12,14 @@ from idp.mesh.selection import Selection
 from idp.stepper import motions as mo
 
 
-def selection_from_spec(spec) -> Selection:
-    """A :class:`~idp.mesh.selection.Selection` from a ``SelectionSpec``."""
+def selection_from_spec(spec, groups: dict[str, np.ndarray] | None = None) -> Selection:
+    """A :class:`~idp.mesh.selection.Selection` from a ``SelectionSpec``; ``groups``: the mesh's vertex groups."""
+    if spec.group is not None:
+        groups = groups or {}
+        if spec.group not in groups:
+            known = ", ".join(sorted(groups)) or "none"
+            raise SceneError(f"select.group: the mesh has no vertex group {spec.group!r} (it has: {known})")
+        return Selection(indices=np.asarray(groups[spec.group], dtype=np.int64))
     if spec.box is not None:
         return Selection(box=(np.asarray(spec.box[0], float), np.asarray(spec.box[1], float)), relative=spec.relative)
     if spec.sphere is not None:

@@ -32,21 +32,25 @@ class SphereSpec(_Model):
 
 
 class SelectionSpec(_Model):
-    """Exactly one of ``box`` [lo, hi], ``sphere`` or ``indices`` (object-local vertex ids).
+    """Exactly one of ``box`` [lo, hi], ``sphere``, ``indices`` (object-local vertex ids) or ``group`` (a named
+    vertex group of the mesh file: a point set, or an integer/bool point field whose nonzero entries are in).
 
     ``relative``: box corners / sphere centre are fractions of the object's bounding box (0 = min, 1 = max)."""
 
     box: list[list[Float]] | None = None
     sphere: SphereSpec | None = None
     indices: Annotated[list[NonNegInt], Field(min_length=1)] | None = None
+    group: Name | None = None
     relative: Bool = False
 
     @model_validator(mode="after")
     def _one(self) -> SelectionSpec:
-        given = [k for k in ("box", "sphere", "indices") if getattr(self, k) is not None]
+        given = [k for k in ("box", "sphere", "indices", "group") if getattr(self, k) is not None]
         if len(given) != 1:
-            raise rule_error([("", f"give exactly one of `box`, `sphere` or `indices` (got {given or 'none'})")])
-        if self.indices is not None and self.relative:
+            raise rule_error(
+                [("", f"give exactly one of `box`, `sphere`, `indices` or `group` (got {given or 'none'})")]
+            )
+        if (self.indices is not None or self.group is not None) and self.relative:
             raise rule_error([("relative", "only applies to `box` and `sphere`")])
         if self.box is not None:
             if len(self.box) != 2:

@@ -330,3 +330,39 @@ def test_resume_restores_handles_selected_during_the_run(tmp_path):
     assert resumed.step_records[0]["step"] == 3
     # same code path and inputs on the same machine: equal to round-off of the linear solves
     np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
+
+
+def test_handle_selects_a_vertex_group_read_from_the_mesh_file(tmp_path):
+    import meshio
+
+    from idp.mesh import generate as gen
+
+    m = gen.tet_box(lo=(-0.5, -0.05, -0.05), hi=(0.5, 0.05, 0.05), resolution=(20, 2, 2))
+    tip = (m.vertices[:, 0] > 0.49).astype(np.int32)
+    path = tmp_path / "beam.vtu"
+    meshio.write(path, meshio.Mesh(m.vertices, [("tetra", m.elements)], point_data={"tip": tip}))
+    d = {
+        "time": {"h": H, "steps": 2},
+        "contact": {"dhat": 1e-3},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [
+            {
+                "name": "beam",
+                "mesh": str(path),
+                "fixed": [LEFT],
+                "handles": [
+                    {
+                        "name": "tip",
+                        "select": {"group": "tip"},
+                        "motion": {"type": "translate", "velocity": [0, 0.5, 0]},
+                    }
+                ],
+            }
+        ],
+    }
+    built = build_scene(scene_from_dict(d))
+    h = built.system.conditions[0].handles[0]
+    np.testing.assert_array_equal(np.sort(h.vertices), np.flatnonzero(tip))
+    d["objects"][0]["handles"][0]["select"] = {"group": "nose"}
+    with pytest.raises(SceneError, match=r"handles\[0\].*no vertex group 'nose' \(it has: tip\)"):
+        build_scene(scene_from_dict(d))
