@@ -288,7 +288,9 @@ class StepSolver:
         sqrt_h = math.sqrt(s.h)
         c = self._constraint = s.step_constraint
         self._held = None
-        feasible = self.feasible_step
+        def feasible(x_: np.ndarray, P_: np.ndarray) -> float:  # the constraint's moves, timed with the step's
+            return self.feasible_step(x_, P_, res)
+
         if c is not None:
             x = c.begin(x, feasible)
             self._update_held(c, free)
