@@ -123,7 +123,8 @@ def _machine() -> str:
 
 def write_table(results: list[dict], out: Path) -> str:
     rows = [
-        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) | s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
+        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) "
+        "| s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
@@ -135,9 +136,10 @@ def write_table(results: list[dict], out: Path) -> str:
         fill = f"{100 * r['fill_final']:.2f} %" if r["fill_final"] is not None else "–"
         rfill = f"{100 * ref['fill']:.2f} %" if ref else "–"
         rows.append(
-            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} | {speed} | "
-            f"{r['newton_iterations']} ({ref.get('newton_iterations', '–')}) | {r['seconds_per_iteration']:.3f} ({ref_spi}) | "
-            f"{fill} ({rfill}) | {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
+            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} "
+            f"| {speed} | {r['newton_iterations']} ({ref.get('newton_iterations', '–')}) "
+            f"| {r['seconds_per_iteration']:.3f} ({ref_spi}) | {fill} ({rfill}) "
+            f"| {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
         )
     split_rows = [
         "",
@@ -191,7 +193,7 @@ def write_plots(results: list[dict], out: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4.5))
     pts = [(r["vertices"], r["seconds_per_iteration"], r["scene"]) for r in results if r["scene"].startswith("bunny")]
     if pts:
-        n, t, names = zip(*sorted(pts))
+        n, t, names = zip(*sorted(pts), strict=True)
         ax.loglog(n, t, "o-", label="idp")
         for ni, ti, nm in pts:
             ax.annotate(nm, (ni, ti), fontsize=7)
@@ -201,7 +203,7 @@ def write_plots(results: list[dict], out: Path) -> None:
             if nm in REFERENCE
         ]
         if ref:
-            rn, rt = zip(*ref)
+            rn, rt = zip(*ref, strict=True)
             ax.loglog(rn, rt, "s--", label="reference (C++)")
         if len(n) >= 2:
             slope = math.log(t[-1] / t[0]) / math.log(n[-1] / n[0])
