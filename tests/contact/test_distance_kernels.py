@@ -102,7 +102,7 @@ def test_distance_matches_ipctk(kind):
     rng = np.random.default_rng(7 + kind)
     f, fg, fh = IPCTK_REF[kind]
     k = K.STENCIL_SIZE[kind]
-    for it in range(60):
+    for _ in range(60):
         X = rng.standard_normal((k, 3)) * 10.0 ** rng.uniform(-2, 2)
         d, g, H = kernel_all(kind, X)
         rd, rg, rh = f(*X), np.asarray(fg(*X)).ravel(), fh(*X)

@@ -78,7 +78,7 @@ def test_first_root_picks_earliest_of_several() -> None:
     # purely linear: 0.9 - s
     assert _first_root(0.0, 0.0, -1.0, 0.9) == pytest.approx(0.9, abs=1e-13)
     # dips close to zero (min 1e-6 at s = 0.5) but stays positive, then a root after 0.5
-    c = np.poly([0.5, 0.5]) + [0, 0, 1e-6]  # (s - 0.5)^2 + 1e-6
+    c = np.poly([0.5, 0.5]) + np.array([0.0, 0.0, 1e-6])  # (s - 0.5)^2 + 1e-6
     c3 = np.polymul(c, [-1.0, 0.8])  # times (0.8 - s): root at 0.8
     assert _first_root(c3[0], c3[1], c3[2], c3[3]) == pytest.approx(0.8, abs=1e-13)
     # near-zero leading coefficient: quadratic (s-0.4)(s-0.6) with a 1e-18 cubic term
