@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import platform
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from idp.bench.machine import describe, summary
 from idp.bench.reference import PAPER, REFERENCE
 
 
@@ -100,28 +100,14 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         ),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
+        "machine": describe(),
     }
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     return result
 
 
-def _machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return (
-        f"{platform.system()} {platform.release()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
-    )
-
-
-def write_table(results: list[dict], out: Path) -> str:
+def write_table(results: list[dict], out: Path, machine: dict | None = None) -> str:
+    """results.md: the machine (header), the per-scene table, the per-iteration split; returns the text."""
     rows = [
         "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) "
         "| s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
@@ -167,7 +153,8 @@ def write_table(results: list[dict], out: Path) -> str:
             f"{k}: {100 * v['fill']:.1f} % fill" + (f" ({v['note']})" if "note" in v else "") for k, v in PAPER.items()
         ),
     ]
-    text = "\n".join([f"Machine: {_machine()}", ""] + rows + split_rows + paper) + "\n"
+    header = summary(machine if machine is not None else describe())
+    text = "\n".join(["  \n".join(header), "", *rows, *split_rows, *paper]) + "\n"
     (out / "results.md").write_text(text)
     return text
 
@@ -260,9 +247,10 @@ def main(args) -> int:
             flush=True,
         )
     if results:
-        print(write_table(results, out))
+        machine = describe()
+        print(write_table(results, out, machine))
         write_plots(results, out)
-        (out / "suite.json").write_text(json.dumps({"machine": _machine(), "results": results}, indent=1))
+        (out / "suite.json").write_text(json.dumps({"machine": machine, "results": results}, indent=1))
     return 0 if results and all(r["uncertified_frames"] == 0 for r in results) else 1
 
 
