@@ -59,8 +59,9 @@ def _numba_target_cpu() -> str | None:
     try:
         from numba.core import config
 
-        if config.CPU_NAME:  # set by NUMBA_CPU_NAME (e.g. "generic")
-            return str(config.CPU_NAME)
+        name = getattr(config, "CPU_NAME", None)  # set by NUMBA_CPU_NAME (e.g. "generic")
+        if name:
+            return str(name)
         import llvmlite.binding as llvm
 
         return str(llvm.get_host_cpu_name())
@@ -72,7 +73,7 @@ def _numba_threads() -> int | None:
     try:
         import numba
 
-        return int(numba.config.NUMBA_NUM_THREADS)
+        return int(getattr(numba.config, "NUMBA_NUM_THREADS"))  # noqa: B009 (set at import, unknown to mypy)
     except Exception:
         return None
 
@@ -107,7 +108,7 @@ def describe(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
         cpu["cpu_model"] = platform.processor() or platform.machine() or None
     if not cpu["logical_cores"]:
         cpu["logical_cores"] = os.cpu_count()
-    versions = {"python": platform.python_version()}
+    versions: dict[str, str | None] = {"python": platform.python_version()}
     versions.update({name: _version(name) for name in PACKAGES})
     versions["cholmod"] = _cholmod_version()
     return {
