@@ -4,14 +4,14 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test bench bench-full clean
+.PHONY: venv demo test test-portable lint bench bench-full clean
 
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[cholmod,test]'
+	$(BIN)/pip install --quiet -e '.[cholmod,test,lint]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -19,6 +19,23 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# The tests that run compiled (numba) kernels, once compiled for numba's generic x86-64 baseline CPU
+# (no FMA/AVX: other rounding than the host build; numba's disk cache is keyed by CPU name, so this
+# recompiles) and once single-threaded: results must not depend on the CPU or the thread count.
+PORTABLE_TESTS := tests/contact tests/energies tests/solver tests/stepper tests/mesh
+
+test-portable: $(STAMP)
+	NUMBA_CPU_NAME=generic $(BIN)/python -m pytest -q $(PORTABLE_TESTS)
+	NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q $(PORTABLE_TESTS)
+
+# Static checks (also run by .ci/run and, per commit, by .pre-commit-config.yaml)
+LINT_PATHS := idp bench tests
+
+lint: $(STAMP)
+	$(BIN)/ruff check $(LINT_PATHS)
+	$(BIN)/ruff format --check $(LINT_PATHS)
+	$(BIN)/mypy $(LINT_PATHS)
 
 bench: $(STAMP)
 	$(BIN)/idp bench --quick -o bench/results/quick

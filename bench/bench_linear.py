@@ -180,7 +180,7 @@ def bench_fallback_candidates(nx: int) -> list[dict[str, Any]]:
                 its[0] += 1
 
             M = sp.diags(1.0 / A.diagonal())
-            x, info = spla.cg(A, b, rtol=1e-11, M=M, maxiter=A.shape[0], callback=count)
+            x, _info = spla.cg(A, b, rtol=1e-11, M=M, maxiter=A.shape[0], callback=count)
             return x
 
         cands: dict[str, Callable[[], np.ndarray]] = {
@@ -248,7 +248,8 @@ def main() -> None:
     if not args.quick and "cholmod" in kinds:
         print("\nCHOLMOD after a pattern change (near couplings added): fresh ND vs reused ordering")
         print(
-            f"{'n':>7s} {'contacts':>8s} {'reuse':>6s} {'ordering':>9s} {'symbolic':>9s} {'numeric':>8s} {'nnz(L)':>11s}"
+            f"{'n':>7s} {'contacts':>8s} {'reuse':>6s} {'ordering':>9s} {'symbolic':>9s} "
+            f"{'numeric':>8s} {'nnz(L)':>11s}"
         )
         for r in bench_pattern_change(args.sizes[-1], [10, 100, 1000]):
             out["pattern_change"].append(r)

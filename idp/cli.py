@@ -52,13 +52,15 @@ def _print_summary(result, out: Path) -> None:
         f"steps run:          {s['steps_run']} ({s['stopped']})",
         f"wall time:          {s['wall_time']:.1f} s",
         f"Newton iterations:  {s['newton_iterations']} ({s['nonconverged_steps']} step(s) not converged)",
-        f"certificate:        {'all frames certified' if s['all_certified'] else str(s['uncertified_frames']) + ' frame(s) FAILED'}"
-        f" (min surface distance {s['min_distance']:.3e})",
+        "certificate:        "
+        + ("all frames certified" if s["all_certified"] else f"{s['uncertified_frames']} frame(s) FAILED")
+        + f" (min surface distance {s['min_distance']:.3e})",
     ]
     if fill is not None:
         lines.insert(
             0,
-            f"fill fraction:      {100 * fill:.2f} % of the cage volume (start {100 * s['initial_fill_fraction']:.2f} %)",
+            f"fill fraction:      {100 * fill:.2f} % of the cage volume"
+            f" (start {100 * s['initial_fill_fraction']:.2f} %)",
         )
     if s.get("dhat") is not None:
         lines.append(f"contact distance:   d̂ = {s['dhat']:.4g} (absolute)")

@@ -4,6 +4,8 @@ Reference C++ implementation (authors' code) on an idle 2-core machine of the ki
 shared/notes/reference.md §0 (wall = whole process, 60 steps, PNTol = 1). Paper figures: §6.
 """
 
+from typing import Any
+
 REFERENCE = {
     "bunny_700": {
         "verts": 865,
@@ -55,7 +57,7 @@ REFERENCE = {
     },
 }
 
-PAPER = {
+PAPER: dict[str, dict[str, Any]] = {
     "bunny_box_54K": {"fill": 0.9993, "note": "54K-vertex bunny (mesh not in the data)"},
     "hourglass_bunny": {"fill": 0.983},
     "hourglass_octocat": {"fill": 0.978},

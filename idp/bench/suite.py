@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import platform
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from idp.bench.machine import describe, summary
 from idp.bench.reference import PAPER, REFERENCE
 
 
@@ -100,30 +100,17 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         ),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
+        "machine": describe(),
     }
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     return result
 
 
-def _machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return (
-        f"{platform.system()} {platform.release()}, {os.cpu_count()} cores ({cpu}), Python {platform.python_version()}"
-    )
-
-
-def write_table(results: list[dict], out: Path) -> str:
+def write_table(results: list[dict], out: Path, machine: dict | None = None) -> str:
+    """results.md: the machine (header), the per-scene table, the per-iteration split; returns the text."""
     rows = [
-        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) | s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
+        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) "
+        "| s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
@@ -135,9 +122,10 @@ def write_table(results: list[dict], out: Path) -> str:
         fill = f"{100 * r['fill_final']:.2f} %" if r["fill_final"] is not None else "–"
         rfill = f"{100 * ref['fill']:.2f} %" if ref else "–"
         rows.append(
-            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} | {speed} | "
-            f"{r['newton_iterations']} ({ref.get('newton_iterations', '–')}) | {r['seconds_per_iteration']:.3f} ({ref_spi}) | "
-            f"{fill} ({rfill}) | {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
+            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} "
+            f"| {speed} | {r['newton_iterations']} ({ref.get('newton_iterations', '–')}) "
+            f"| {r['seconds_per_iteration']:.3f} ({ref_spi}) | {fill} ({rfill}) "
+            f"| {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
         )
     split_rows = [
         "",
@@ -165,7 +153,8 @@ def write_table(results: list[dict], out: Path) -> str:
             f"{k}: {100 * v['fill']:.1f} % fill" + (f" ({v['note']})" if "note" in v else "") for k, v in PAPER.items()
         ),
     ]
-    text = "\n".join([f"Machine: {_machine()}", ""] + rows + split_rows + paper) + "\n"
+    header = summary(machine if machine is not None else describe())
+    text = "\n".join(["  \n".join(header), "", *rows, *split_rows, *paper]) + "\n"
     (out / "results.md").write_text(text)
     return text
 
@@ -191,7 +180,7 @@ def write_plots(results: list[dict], out: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4.5))
     pts = [(r["vertices"], r["seconds_per_iteration"], r["scene"]) for r in results if r["scene"].startswith("bunny")]
     if pts:
-        n, t, names = zip(*sorted(pts))
+        n, t, names = zip(*sorted(pts), strict=True)
         ax.loglog(n, t, "o-", label="idp")
         for ni, ti, nm in pts:
             ax.annotate(nm, (ni, ti), fontsize=7)
@@ -201,7 +190,7 @@ def write_plots(results: list[dict], out: Path) -> None:
             if nm in REFERENCE
         ]
         if ref:
-            rn, rt = zip(*ref)
+            rn, rt = zip(*ref, strict=True)
             ax.loglog(rn, rt, "s--", label="reference (C++)")
         if len(n) >= 2:
             slope = math.log(t[-1] / t[0]) / math.log(n[-1] / n[0])
@@ -258,9 +247,10 @@ def main(args) -> int:
             flush=True,
         )
     if results:
-        print(write_table(results, out))
+        machine = describe()
+        print(write_table(results, out, machine))
         write_plots(results, out)
-        (out / "suite.json").write_text(json.dumps({"machine": _machine(), "results": results}, indent=1))
+        (out / "suite.json").write_text(json.dumps({"machine": machine, "results": results}, indent=1))
     return 0 if results and all(r["uncertified_frames"] == 0 for r in results) else 1
 
 

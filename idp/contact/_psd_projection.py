@@ -77,6 +77,12 @@ TOL_EIG = 1e-15
 
 _EPS = 2.220446049250313e-16
 
+#: Return values of ``project_psd``: which path handled the block.
+PATH_TRIVIAL = 0  # zero or non-finite block: left as is
+PATH_FAST = 1  # certified PSD by the LDLᵀ test: H not written (returned bit for bit)
+PATH_GENERAL = 2  # eigenvalue path (3 x 3 register path, or tridiagonal QR)
+PATH_JACOBI = 3  # Jacobi fallback after the QR iteration cap
+
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
 def _ldlt_is_psd(A: np.ndarray, k: int, tol: float) -> bool:
@@ -568,14 +574,20 @@ def _project3(H: np.ndarray, work: np.ndarray, scale: float) -> bool:
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
-def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
+def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> int:
     """In place: H[:k,:k] <- V max(Λ,0) Vᵀ where H[:k,:k] = V Λ Vᵀ (symmetric input; output exactly symmetric).
 
     work: float64 scratch of shape at least (WORK_ROWS, 12) (module constant WORK_ROWS) so
     the caller can allocate it once per thread/chunk; no allocation inside.  k <= 12
     (ValueError otherwise, or when H / work are too small).
     The symmetric part (H + Hᵀ)/2 is used (written back; a no-op for symmetric input).
-    Matrices that are PSD up to ~k * TOL_PSD * max|H_ij| are returned unchanged."""
+    Matrices that are PSD up to ~k * TOL_PSD * max|H_ij| are returned unchanged.
+
+    Returns the path taken (module constants): PATH_TRIVIAL (zero or non-finite block, left
+    as is), PATH_FAST (certified PSD by the LDLᵀ test: H not written at all, so it is returned
+    bit for bit), PATH_GENERAL (eigenvalue path, k = 1 included), PATH_JACOBI (fallback).
+    Which of PATH_FAST / PATH_GENERAL a matrix that is semidefinite only up to rounding takes
+    can depend on the CPU (FMA contraction, target ISA); the result agrees either way."""
     if k > KMAX or H.shape[0] < k or H.shape[1] < k or work.shape[0] < WORK_ROWS or work.shape[1] < KMAX:
         raise ValueError("project_psd: need k <= 12, H at least k x k, work (WORK_ROWS, 12)")
     # symmetrise, find the scale and the smallest diagonal entry
@@ -598,11 +610,11 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
             s = max(s, aa)
             total += aa
     if s == 0.0 or not (total < np.inf):
-        return  # zero (already PSD) or non-finite input
+        return PATH_TRIVIAL  # zero (already PSD) or non-finite input
     if k == 1:
         if H[0, 0] < 0.0:
             H[0, 0] = 0.0
-        return
+        return PATH_GENERAL
     inv = 1.0 / s
     if dmin >= -TOL_PSD * s:
         # fast path: LDLᵀ with lazy pivoting on (the upper triangle of) a scaled copy
@@ -612,11 +624,12 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
                 uj = np.uintp(j)
                 work[ui, uj] = H[ui, uj] * inv
         if _ldlt_is_psd(work, k, TOL_PSD):
-            return
+            return PATH_FAST
     if k == 3:
         if not _project3(H, work, s):
             _jacobi_project(H, k, work, s)
-        return
+            return PATH_JACOBI
+        return PATH_GENERAL
     # general path on the scaled block
     for i in range(k):
         ui = np.uintp(i)
@@ -627,7 +640,7 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
     nit = _tridiagonal_qr(work, k)
     if nit < 0:
         _jacobi_project(H, k, work, s)
-        return
+        return PATH_JACOBI
     nneg = 0
     npos = 0
     for i in range(k):
@@ -637,12 +650,12 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
         elif lam > TOL_EIG:
             npos += 1
     if nneg == 0:
-        return
+        return PATH_GENERAL
     if npos == 0:
         for i in range(k):
             for j in range(k):
                 H[i, j] = 0.0
-        return
+        return PATH_GENERAL
     keep_h = nneg <= npos
     # indices of the eigenvectors to form, kept (as floats) in the now unused off-diagonal row
     nv = 0
@@ -671,3 +684,4 @@ def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> None:
     for i in range(k):
         for j in range(i + 1, k):
             H[j, i] = H[i, j]
+    return PATH_GENERAL

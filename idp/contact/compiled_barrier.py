@@ -264,7 +264,7 @@ def _values_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  # pr
     X = np.empty((4, 3))
     S4 = np.empty((4, 3))
     for c in range(c0, c1):
-        n, k = _gather(V, verts, local, c, X, S4)
+        _n, k = _gather(V, verts, local, c, X, S4)
         d = sq_distance(kind[c], S4[:k])
         b = barrier(d, dhat2)
         if eps[c] > 0.0:
@@ -287,7 +287,7 @@ def _gradients_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  #
     gd = np.empty(12)
     gm = np.empty(12)
     for c in range(c0, c1):
-        n, k = _gather(V, verts, local, c, X, S4)
+        _n, k = _gather(V, verts, local, c, X, S4)
         d = sq_distance_gradient(kind[c], S4[:k], gd)
         b1 = barrier_first_derivative(d, dhat2)
         for j in range(12):

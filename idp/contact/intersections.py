@@ -236,9 +236,9 @@ def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple
         return set()
     if f.shape[1] == 2:
         a, b = np.sort(f[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
-        keys = {tuple(sorted((tuple(p), tuple(q)))) for p, q in zip(a.tolist(), b.tolist())}
+        keys = {tuple(sorted((tuple(p), tuple(q)))) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
     else:
         e = unique_edges(f)
         a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
-        keys = {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist())}
+        keys = {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
     return keys

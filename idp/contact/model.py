@@ -9,10 +9,14 @@ inside ``BarrierPotential`` (rebuilt when κ changes).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import ipctk
 import numpy as np
 import scipy.sparse as sp
+
+if TYPE_CHECKING:  # imported lazily at run time (compiling it is only needed for the compiled barrier)
+    from idp.contact.compiled_barrier import CollisionSet
 
 BROAD_PHASES = {
     "lbvh": ipctk.LBVH,
@@ -42,7 +46,7 @@ BARRIERS = ("compiled", "ipctk")
 class ContactEvaluation:
     """Collision set at one configuration, with what the Newton loop needs from it."""
 
-    collisions: ipctk.NormalCollisions | CollisionSet  # CollisionSet: idp.contact.compiled_barrier
+    collisions: ipctk.NormalCollisions | CollisionSet
     surface_positions: np.ndarray
     num_active: int
 

@@ -103,7 +103,7 @@ def _check_volume(mesh: VolumeMesh, rep: MeshReport) -> np.ndarray:
         )
     elif neg.size:
         rep.notes.append("all elements are negatively oriented; idp flips them when loading")
-    elems[neg] = elems[neg][:, [1, 0] + list(range(2, elems.shape[1]))]
+    elems[neg] = elems[neg][:, [1, 0, *range(2, elems.shape[1])]]
     return elems
 
 

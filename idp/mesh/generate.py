@@ -166,8 +166,8 @@ def box_surface(
 def revolve_profile(ys: Sequence[float], rs: Sequence[float], segments: int) -> SurfaceMesh:
     """Surface of revolution about the y axis of the profile (r(t), y(t)).
 
-    Faces are outward oriented when the profile runs from bottom to top. An end with ``r == 0`` becomes a single pole vertex
-    (both ends zero gives a closed surface), an end with ``r > 0`` is left open. Interior
+    Faces are outward oriented when the profile runs from bottom to top. An end with ``r == 0``
+    becomes a single pole vertex (both ends zero gives a closed surface), an end with ``r > 0`` is left open. Interior
     profile radii must be positive. Ring vertex j sits at angle 2*pi*j/segments.
     """
     y = np.asarray(ys, dtype=np.float64)

@@ -207,10 +207,11 @@ def read_mesh(
 
     ``kind="auto"``: tetrahedra give a 3D :class:`VolumeMesh`; otherwise triangles with all
     z == 0 (in a format that can hold solids) give a 2D :class:`VolumeMesh`; otherwise a
-    :class:`SurfaceMesh` (3D triangles, or a 2D polyline for a file of z = 0 segments). ``kind="volume"`` / ``"surface"`` force the choice (a tet file read
-    as ``"surface"`` gives its outward boundary). ``fix_orientation`` flips a mesh whose
-    elements are all negative; ``validate=False`` skips the inverted / degenerate checks
-    (used by ``idp check`` to report rather than raise).
+    :class:`SurfaceMesh` (3D triangles, or a 2D polyline for a file of z = 0 segments).
+    ``kind="volume"`` / ``"surface"`` force the choice (a tet file read as ``"surface"`` gives its
+    outward boundary). ``fix_orientation`` flips a mesh whose elements are all negative;
+    ``validate=False`` skips the inverted / degenerate checks (used by ``idp check`` to report
+    rather than raise).
     """
     if kind not in _KINDS:
         raise MeshError(f"unknown mesh kind {kind!r}; expected one of {', '.join(_KINDS)}")

@@ -125,7 +125,7 @@ class FrameWriter:
         """The full OBJ file for positions ``x`` (vectorised formatting, one op per part)."""
         chunks = [f"# idp frame, {len(self.parts)} parts\n"]
         vline = "v " + " ".join([_OBJ_FLOAT] * 3) + "\n"
-        for p, ids, faces in zip(self.parts, self._obj_ids, self._obj_face_text):
+        for p, ids, faces in zip(self.parts, self._obj_ids, self._obj_face_text, strict=True):
             pts = np.zeros((ids.size, 3))
             pts[:, : self.dim] = x[ids]
             chunks.append(f"o {_obj_name(p.name)}\n")

@@ -118,7 +118,7 @@ def _panel_3d(ax, parts: list[Part], x: np.ndarray, cam, cages: list[bool]) -> n
         polys.append(proj[p.surface[front]])
         colours.append(rgba)
         depths.append(depth[p.surface[front]].mean(axis=1))
-    for polys_c, cols_c in zip(cage_polys, cage_cols):
+    for polys_c, cols_c in zip(cage_polys, cage_cols, strict=True):
         ax.add_collection(PolyCollection(polys_c, facecolors=cols_c, edgecolors="none", zorder=1))
     for segs in cage_edges:
         ax.add_collection(LineCollection(segs, colors=[_CAGE_EDGE], linewidths=0.9, zorder=2))
@@ -197,7 +197,7 @@ def render_frames_png(
         inner = np.concatenate(deform) if deform else np.zeros((0, 3))
         cages = [p.kind == "obstacle" and _encloses(xs[0][np.unique(p.surface)], inner) for p in parts]
     axes, pts = [], []
-    for k, ((title, _), x) in enumerate(zip(frames, xs)):
+    for k, ((title, _), x) in enumerate(zip(frames, xs, strict=True)):
         ax = fig.add_subplot(rows, cols, k + 1)
         pts.append(_panel_3d(ax, parts, x, cam, cages) if dim == 3 else _panel_2d(ax, parts, x))
         ax.set_title(str(title), fontsize=11)

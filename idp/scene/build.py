@@ -414,7 +414,8 @@ def _input_intersections(x, surface, parts, dim, preserve: bool):
         raise IntersectingInputError(
             f"the start state has {len(keys)} intersecting surface primitive pair(s) (object:vertex ids), e.g. "
             + "; ".join(shown)
-            + ". Fix the input, or set contact.preserve_input_intersections = true to keep them (IDP then preserves, never removes, them)."
+            + ". Fix the input, or set contact.preserve_input_intersections = true to keep them"
+            " (IDP then preserves, never removes, them)."
         )
     log.warning("preserving %d intersecting input primitive pair(s); every other pair stays guarded", len(keys))
     return keys, len(keys)

@@ -9,6 +9,7 @@ with the same one-line-per-problem message.
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -492,7 +493,7 @@ class SceneObject(_Model):
         elif self.motion is not None:
             probs.append(("motion", "only allowed on obstacles (drive a deformable object with `handles`)"))
         starts = [st.start for st in self.material_stages]
-        if any(b <= a for a, b in zip(starts[:-1], starts[1:], strict=True)):
+        if any(b <= a for a, b in itertools.pairwise(starts)):
             probs.append(("material_stages", f"start steps must increase strictly (got {starts})"))
         names = [h.name for h in self.handles]
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -506,7 +507,8 @@ class SceneObject(_Model):
                 probs.append(
                     (
                         "generate.shape",
-                        f"'{gen.shape}' makes {what}; {'a deformable' if want == 'volume' else 'an obstacle'} needs one of: "
+                        f"'{gen.shape}' makes {what}; "
+                        f"{'a deformable' if want == 'volume' else 'an obstacle'} needs one of: "
                         f"{_shapes(3, want)} (3D), {_shapes(2, want)} (2D)",
                     )
                 )

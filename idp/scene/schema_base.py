@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Union
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError
 from pydantic_core import PydanticCustomError
@@ -42,7 +42,7 @@ Vec3 = Annotated[list[Float], _fixed_length(3)]
 PosVec3 = Annotated[list[PosFloat], _fixed_length(3)]
 Res2 = Annotated[list[PosInt], _fixed_length(2)]
 Res3 = Annotated[list[PosInt], _fixed_length(3)]
-Scale = Union[Float, list[Float]]
+Scale = Float | list[Float]
 
 
 def rule_error(problems: list[tuple[str, str]]) -> PydanticCustomError:

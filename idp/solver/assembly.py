@@ -124,7 +124,6 @@ class FixedPatternAssembler:
         n = dof_map.num_free
         key_parts = []
         for dofs in element_dofs:
-            k = dofs.shape[1]
             local = dof_map.global_to_free[dofs]  # (m, k), -1 for pinned DOFs
             keys = (local[:, :, None] * n + local[:, None, :]).reshape(-1)
             keys[((local[:, :, None] < 0) | (local[:, None, :] < 0)).reshape(-1)] = -1
@@ -178,7 +177,7 @@ class FixedPatternAssembler:
     def assemble_data(self, element_blocks: list[np.ndarray], weights: list[float], diagonal: np.ndarray) -> np.ndarray:
         """Values of Σ_i weights[i]·blocks[i] + diag(``diagonal``) on the fixed pattern."""
         data = self.start_data(diagonal)
-        for i, (blocks, w) in enumerate(zip(element_blocks, weights)):
+        for i, (blocks, w) in enumerate(zip(element_blocks, weights, strict=True)):
             self.add_element_blocks(data, i, 0, blocks, w)
         return self.finish_data(data)
 

@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 _BACKENDS: tuple[str, ...] = ("cholmod", "scipy")
-_CHOICES: tuple[str, ...] = ("auto",) + _BACKENDS
+_CHOICES: tuple[str, ...] = ("auto", *_BACKENDS)
 
 
 class NotPositiveDefinite(SolverError):

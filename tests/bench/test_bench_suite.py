@@ -24,6 +24,11 @@ def test_bench_tiny_scene_writes_json_table_and_plots(tmp_path, capsys):
         assert key in res
     assert res["steps"] == 3 and res["uncertified_frames"] == 0 and res["certified_frames"] == 3
     assert res["peak_rss_mb"] > 10
+    # the machine it ran on, to compare runs across machines
+    machine = res["machine"]
+    assert machine["logical_cores"] >= 1 and machine["numba_target_cpu"]
+    assert {"numpy", "scipy", "numba", "ipctk", "cvxopt", "cholmod"} <= set(machine["versions"])
+    assert json.loads((tmp_path / "suite.json").read_text())["machine"]["versions"] == machine["versions"]
     split = res["per_iteration_split"]
     assert {"assembly", "linear_solve", "ccd", "line_search", "contact_build", "certificate", "other"} <= set(split)
     # the split partitions the step time (no phase counted twice): its parts add up to seconds per iteration
@@ -31,6 +36,7 @@ def test_bench_tiny_scene_writes_json_table_and_plots(tmp_path, capsys):
     assert abs(steps_time - sum(res["wall_per_step"])) <= 0.05 * sum(res["wall_per_step"]) + 1e-3
     table = (tmp_path / "results.md").read_text()
     assert "| tiny |" in table and "linear solve" in table
+    assert table.startswith("**Machine:**") and "**numba:** target CPU" in table and "ipctk" in table
     assert (tmp_path / "fill_per_step.png").stat().st_size > 1000
     assert (tmp_path / "scaling.png").exists()
 

@@ -1,5 +1,7 @@
 """Finite-difference checks of the IPC barrier wrapper (value / gradient / Hessian) and CCD/κ behaviour."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -73,7 +75,7 @@ def test_barrier_is_zero_beyond_dhat_and_grows_towards_contact():
     for gap in (0.08, 0.04, 0.01, 0.001):
         y, _, _ = two_boxes(gap, rng)
         values.append(cm.value(cm.evaluate(y)))
-    assert all(b > a for a, b in zip(values, values[1:]))
+    assert all(b > a for a, b in itertools.pairwise(values))
 
 
 def test_ccd_stops_a_step_that_would_pass_through():

@@ -109,12 +109,12 @@ def brute_force(V0, V1, E, F, infl, nd):
     ok = ((flo[:, None] <= vhi[None] + infl) & (vlo[None] <= fhi[:, None] + infl)).all(axis=-1)
     f, v = np.nonzero(ok)
     keep = (F[f] != v[:, None]).all(axis=1) & ((F[f].min(axis=1) < nd) | (v < nd))
-    fv = set(zip(f[keep].tolist(), v[keep].tolist()))
+    fv = set(zip(f[keep].tolist(), v[keep].tolist(), strict=True))
     ok = ((elo[:, None] <= ehi[None] + infl) & (elo[None] <= ehi[:, None] + infl)).all(axis=-1)
     a, b = np.nonzero(np.triu(ok, 1))
     share = (E[a][:, :, None] == E[b][:, None, :]).any(axis=(1, 2))
     keep = ~share & ((E[a].min(axis=1) < nd) | (E[b].min(axis=1) < nd))
-    ee = set(zip(a[keep].tolist(), b[keep].tolist()))
+    ee = set(zip(a[keep].tolist(), b[keep].tolist(), strict=True))
     return fv, ee
 
 
@@ -158,7 +158,7 @@ def test_same_pairs_on_one_thread_and_deterministic():
     V, E, F, nd = ball_in_box()
     a = surface_candidates(V, None, E, F, 1e-2, nd)
     b = surface_candidates(V, None, E, F, 1e-2, nd)
-    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))  # integer pair lists
     old = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
@@ -232,7 +232,7 @@ def test_exclusions():
     # three stacked parallel triangles A (z=0), B (z=0.06), C (z=0.12); inflation 0.07 joins A-B and
     # B-C but not A-C. Within a triangle every pair passes the box test but shares a vertex.
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
-    V = np.vstack([tri, tri + [0, 0, 0.06], tri + [0, 0, 0.12]])
+    V = np.vstack([tri, tri + np.array([0, 0, 0.06]), tri + np.array([0, 0, 0.12])])
     F = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]], dtype=np.int32)
     E = ipctk.edges(F).astype(np.int32)
     tri_of_edge = E[:, 0] // 3

@@ -59,7 +59,7 @@ def test_2d_segments():
 def test_2d_circles():
     a = polygon_circle(1.0, segments=40)
     for dx, hits in ((1.0, 2), (2.5, 0)):
-        v = np.vstack([a.vertices, a.vertices + [dx, 0.0]])
+        v = np.vstack([a.vertices, a.vertices + np.array([dx, 0.0])])
         f = np.vstack([a.faces, a.faces + 40])
         assert count_intersections(v, f) == hits
     # a long segment through many short ones is still found (long-segment path)

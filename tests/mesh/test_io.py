@@ -79,7 +79,7 @@ def test_tet_file_as_surface_gives_boundary(tmp_path):
 
 
 def test_missing_file_and_bad_kind(tmp_path):
-    with pytest.raises(MeshError, match="mesh file not found: .*nothing.msh"):
+    with pytest.raises(MeshError, match=r"mesh file not found: .*nothing\.msh"):
         read_mesh(tmp_path / "nothing.msh")
     with pytest.raises(MeshError, match="unknown mesh kind"):
         read_mesh(tmp_path / "nothing.msh", kind="solid")
@@ -88,11 +88,11 @@ def test_missing_file_and_bad_kind(tmp_path):
 def test_unreadable_file(tmp_path):
     p = tmp_path / "junk.xyz"
     p.write_text("hello")
-    with pytest.raises(MeshError, match="cannot read mesh file .*junk.xyz"):
+    with pytest.raises(MeshError, match=r"cannot read mesh file .*junk\.xyz"):
         read_mesh(p)
     q = tmp_path / "junk.vtk"
     q.write_text("not a vtk file at all\n")
-    with pytest.raises(MeshError, match="junk.vtk"):
+    with pytest.raises(MeshError, match=r"junk\.vtk"):
         read_mesh(q)
 
 
@@ -114,7 +114,7 @@ def test_nan_vertex_is_named(tmp_path):
 def test_index_out_of_range(tmp_path):
     p = tmp_path / "bad.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n")
-    with pytest.raises(MeshError, match="bad.obj:5: .*out of range"):
+    with pytest.raises(MeshError, match=r"bad\.obj:5: .*out of range"):
         read_mesh(p)
     # meshio itself accepts out-of-range indices in .vtu: read_mesh must catch them.
     q = _write_raw(tmp_path / "bad.vtu", UNIT_TET, [("tetra", np.array([[0, 1, 2, 3], [0, 1, 2, 7]]))])

@@ -80,7 +80,7 @@ def check_obj(path: Path, parts: list[Part], x: np.ndarray, kind: str) -> None:
     assert list(groups) == [p.name.replace(" ", "_") for p in parts]
     total = sum(len(g["v"]) for g in groups.values())
     start = 1
-    for p, g in zip(parts, groups.values()):
+    for p, g in zip(parts, groups.values(), strict=True):
         ids = np.unique(p.surface)
         v = np.array(g["v"])
         assert v.shape == (ids.size, 3)

@@ -53,7 +53,6 @@ def test_vertex_block_pattern_matches_dof_pattern(dim):
 
 
 def test_collision_hessian_restricted_to_free_dofs():
-    rng = np.random.default_rng(1)
     Hc = sp.random(6, 6, density=0.6, random_state=2, format="csc")
     to_free = np.array([0, -1, 1, 2, -1, 3])
     R = restrict_collision_hessian(Hc, to_free, 4).toarray()

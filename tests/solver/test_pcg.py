@@ -30,7 +30,10 @@ def test_pcg_from_the_folded_factor_gives_the_exact_direction(seed):
     assert np.allclose(x, exact, rtol=1e-7, atol=1e-9 * np.abs(exact).max())
     assert np.abs(x0 - exact).max() > 1e-3 * np.abs(exact).max()  # folding did change the direction
     # every iterate is a descent direction of the quadratic model ½xᵀHx − bᵀx (here: from x0 on)
-    q = lambda y: 0.5 * y @ H @ y - b @ y
+
+    def q(y):
+        return 0.5 * y @ H @ y - b @ y
+
     x1, _, _ = pcg_from_majorant(lambda v: M @ v + K @ v, lu.solve, b, x0, 0.0, 1)
     assert q(x1) <= q(x0) < 0
 
@@ -40,10 +43,13 @@ def test_pcg_reports_a_hit_cap_and_an_indefinite_matrix():
     A = rng.standard_normal((30, 30))
     H = A @ A.T + np.eye(30)
     b = rng.standard_normal(30)
-    ident = lambda v: v.copy()
-    x, its, ok = pcg_from_majorant(lambda v: H @ v, ident, b, b, 1e-12, 3)
+
+    def ident(v):
+        return v.copy()
+
+    _, its, ok = pcg_from_majorant(lambda v: H @ v, ident, b, b, 1e-12, 3)
     assert not ok and its == 3
-    x, its, ok = pcg_from_majorant(lambda v: -v, ident, b, b, 1e-12, 10)
+    _, its, ok = pcg_from_majorant(lambda v: -v, ident, b, b, 1e-12, 10)
     assert not ok
 
 
