@@ -65,7 +65,9 @@ def _print_summary(result, out: Path) -> None:
     if s.get("dhat") is not None:
         lines.append(f"contact distance:   d̂ = {s['dhat']:.4g} (absolute)")
     if s.get("steps_with_unmet_targets"):
-        lines.append(f"handles:            {s['steps_with_unmet_targets']} step(s) ended with targets unmet (stats.json)")
+        lines.append(
+            f"handles:            {s['steps_with_unmet_targets']} step(s) ended with targets unmet (stats.json)"
+        )
     lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
     print("\n".join(lines))
 

@@ -288,6 +288,7 @@ class StepSolver:
         sqrt_h = math.sqrt(s.h)
         c = self._constraint = s.step_constraint
         self._held = None
+
         def feasible(x_: np.ndarray, P_: np.ndarray) -> float:  # the constraint's moves, timed with the step's
             return self.feasible_step(x_, P_, res)
 
