@@ -21,7 +21,18 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from idp.scene.schema_base import Bool, Float, Name, NonNegInt, PosFloat, PosInt, Scale, _check_box, _Model, rule_error
+from idp.scene.schema_base import (
+    Bool,
+    Float,
+    Name,
+    NonNegInt,
+    PosFloat,
+    PosInt,
+    Scale,
+    _Model,
+    check_corner_box,
+    rule_error,
+)
 
 
 class SphereSpec(_Model):
@@ -53,11 +64,7 @@ class SelectionSpec(_Model):
         if (self.indices is not None or self.group is not None) and self.relative:
             raise rule_error([("relative", "only applies to `box` and `sphere`")])
         if self.box is not None:
-            if len(self.box) != 2:
-                raise rule_error([("box", f"must be two corners [lo, hi] (got {len(self.box)} entries)")])
-            probs = _check_box(self.box[0], self.box[1], strict=False)
-            if probs:
-                raise rule_error([("box", probs[0][1])])
+            check_corner_box(self.box)
         return self
 
 

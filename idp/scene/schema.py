@@ -52,6 +52,7 @@ from idp.scene.schema_base import (
     _check_scale,
     _is_number,
     _Model,
+    check_corner_box,
     rule_error,
 )
 
@@ -210,11 +211,7 @@ class FixedSelector(_Model):
         if self.indices is not None and self.relative:
             raise rule_error([("relative", "only applies to `box`")])
         if self.box is not None:
-            if len(self.box) != 2:
-                raise rule_error([("box", f"must be two corners [lo, hi] (got {len(self.box)} entries)")])
-            probs = _check_box(self.box[0], self.box[1], strict=False)
-            if probs:
-                raise rule_error([("box", probs[0][1])])
+            check_corner_box(self.box)
         return self
 
 

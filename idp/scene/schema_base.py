@@ -106,3 +106,12 @@ class _Model(BaseModel):
     # Validation (model_validate, nested models) must keep pydantic's own path and not call this
     # wrapper; the flag tells pydantic the override behaves like BaseModel.__init__.
     __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
+
+
+def check_corner_box(box: list[list[float]]) -> None:
+    """A selection box given as ``[lo, hi]`` (lo <= hi per axis); raises the rule error naming ``box``."""
+    if len(box) != 2:
+        raise rule_error([("box", f"must be two corners [lo, hi] (got {len(box)} entries)")])
+    probs = _check_box(box[0], box[1], strict=False)
+    if probs:
+        raise rule_error([("box", probs[0][1])])
