@@ -88,6 +88,18 @@ def _cell_data(system) -> dict | None:
     return out or None
 
 
+def _previous_records(path: Path) -> list[dict]:
+    """The step records of an interrupted run's stats.json (none if it is missing or unreadable)."""
+    from idp.output.stats import load_stats
+
+    try:
+        steps = load_stats(path)["steps"]
+    except (OSError, ValueError, KeyError):
+        log.warning("%s: the earlier steps' statistics could not be read; the resumed stats start here", path)
+        return []
+    return [r for r in steps if not r.get("initial") and int(r.get("step", 0)) >= 1]
+
+
 def _fill_fraction(system, x) -> float | None:
     cage = system.meta.get("cage_volume")
     if not cage:
@@ -116,11 +128,13 @@ def run_simulation(
         write_vtu=settings.write_vtu,
         fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1),
     )
+    checkpoint = out / "checkpoint.npz"
+    earlier = _previous_records(out / "stats.json") if settings.resume and checkpoint.exists() else []
     stats = StatsRecorder(out / "stats.json", meta)
     solver = StepSolver(system, newton, linear, certifier=certifier)
-    checkpoint = out / "checkpoint.npz"
 
     start_step = 0
+    previous: list[dict] = []  # the finished steps of the interrupted run, kept in stats.json and the summary
     if settings.resume and checkpoint.exists():
         ck = np.load(checkpoint)
         if ck["x"].shape != system.x.shape:
@@ -132,6 +146,7 @@ def run_simulation(
         if system.contact is not None:
             system.contact.kappa, system.contact.kappa_max = float(ck["kappa"]), float(ck["kappa_max"])
         _load_condition_states(ck, system)
+        previous = [r for r in earlier if int(r.get("step", 0)) <= start_step]
         log.info("resuming %s after step %d", out, start_step)
 
     x0 = system.x.copy()
@@ -141,6 +156,8 @@ def run_simulation(
     if start_step == 0:
         writer.write(0, x0, time=0.0)
     fill0 = _fill_fraction(system, x0)
+    for rec in previous:
+        stats.add_step(rec)
     stats.add_step({"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True})
 
     progress = None
@@ -155,7 +172,10 @@ def run_simulation(
     bc = system.step_constraint
     stopped_reason = "step count reached"
     step = start_step
-    records = []
+    records = list(previous)
+    total_its = sum(int(r.get("newton_iterations", 0)) for r in previous)
+    nonconverged = sum(1 for r in previous if not r.get("converged", True))
+    unmet_steps = sum(1 for r in previous if not r.get("dirichlet", {}).get("met", True))
     try:
         for step in range(start_step + 1, settings.steps + 1):
             t_step = time.perf_counter()
@@ -259,8 +279,8 @@ def run_simulation(
             progress.close()
         writer.close()
 
-    wall = time.perf_counter() - t_run
-    steps_done = len(records)
+    wall = time.perf_counter() - t_run + sum(float(r.get("wall_time", 0.0)) for r in previous)
+    steps_done = len(records) - len(previous)
     summary = {
         "steps_run": steps_done,
         "last_step": records[-1]["step"] if records else start_step,
