@@ -61,8 +61,10 @@ def _load_object_mesh(obj, dim: int) -> VolumeMesh | SurfaceMesh:
     if want == "volume" and not isinstance(mesh, VolumeMesh):
         raise MeshError(f"{mesh.source}: object {obj.name!r} is deformable but the mesh has no volume elements")
     if want == "surface" and not isinstance(mesh, SurfaceMesh):
-        # an obstacle given as a volume mesh: use its boundary surface
-        mesh = SurfaceMesh(mesh.vertices, boundary_faces(mesh.elements), source=mesh.source)
+        # an obstacle given as a volume mesh (file or generated solid): its boundary surface, interior dropped
+        faces = boundary_faces(mesh.elements)
+        used, inverse = np.unique(faces, return_inverse=True)
+        mesh = SurfaceMesh(mesh.vertices[used], inverse.reshape(faces.shape), source=mesh.source)
     if mesh.vertices.shape[1] != dim:
         raise MeshError(f"{mesh.source}: object {obj.name!r} is {mesh.vertices.shape[1]}D but the scene is {dim}D")
     return mesh

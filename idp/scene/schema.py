@@ -499,7 +499,8 @@ class SceneObject(_Model):
         if self.generate is not None:
             gen = self.generate
             want = "volume" if self.kind == "deformable" else "surface"
-            if gen.role != want:
+            # an obstacle may also be generated as a solid (ball, ellipsoid, box, disk): its boundary is used
+            if gen.role != want and want == "volume":
                 what = "a volume mesh" if gen.role == "volume" else "a closed surface/polygon"
                 probs.append(
                     (

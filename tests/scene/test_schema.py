@@ -133,9 +133,9 @@ BAD_CASES = {
         _set("objects.0.generate.radiuss", 1.0),
         r"objects\[0\]\.generate\.radiuss: unknown key \(did you mean 'radius'\?\)",
     ),
-    "volume shape as obstacle": (
-        _set("objects.1.generate", {"shape": "ball"}),
-        r"objects\[1\]\.generate\.shape: 'ball' makes a volume mesh",
+    "surface shape as deformable": (
+        _set("objects.0.generate", {"shape": "box_surface"}),
+        r"objects\[0\]\.generate\.shape: 'box_surface' makes a closed surface",
     ),
     "bad literal": (_set("solver.linear_solver", "mkl"), r"solver\.linear_solver: must be one of"),
     "rotation axis zero": (

@@ -366,3 +366,19 @@ def test_handle_selects_a_vertex_group_read_from_the_mesh_file(tmp_path):
     d["objects"][0]["handles"][0]["select"] = {"group": "nose"}
     with pytest.raises(SceneError, match=r"handles\[0\].*no vertex group 'nose' \(it has: tip\)"):
         build_scene(scene_from_dict(d))
+
+
+def test_generated_solid_as_a_kinematic_obstacle_uses_its_boundary(tmp_path):
+    finger = {
+        "name": "finger",
+        "kind": "obstacle",
+        "generate": {"shape": "ellipsoid", "radii": [0.05, 0.1, 0.05], "center": [0.3, 0.2, 0.0], "resolution": 3},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, -1.0, 0.0]}},
+    }
+    s = beam_scene([], steps=3, extra_objects=[finger])
+    built = build_scene(s)
+    part = built.system.parts[1]
+    assert np.unique(part.surface).size == part.vertex_ids.size  # no interior vertices
+    res = simulate(s, tmp_path, progress=False)
+    recs = certified(res)
+    assert max(r["contacts"] for r in recs) > 0  # it reached the beam and pushed it
