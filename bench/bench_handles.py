@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from idp.api import simulate
-from idp.bench.machine import machine_description
+from idp.bench.machine import describe
 from idp.bench.scenes import paper_scene
 from idp.scene.schema import FixedSelector
 
@@ -40,7 +40,7 @@ def main() -> None:
     bar.handles = []
     bar.rest_shape.growth_rate, bar.rest_shape.growth_steps = 0.01, a.steps
 
-    out = {"machine": machine_description(), "steps": a.steps}
+    out = {"machine": describe(), "steps": a.steps}
     for name, scene in (("handles", handles), ("growth", growth)):
         t = time.perf_counter()
         res = simulate(scene, a.output / name, progress=False)

@@ -38,22 +38,22 @@ def symmetric_eigen_jacobi(S: np.ndarray, d: int, Q: np.ndarray, lam: np.ndarray
                     t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
                     if theta < 0.0:
                         t = -t
-                c = 1.0 / math.sqrt(t * t + 1.0)
-                s = t * c
+                cs = 1.0 / math.sqrt(t * t + 1.0)
+                sn = t * cs
                 for r in range(d):  # columns: S J
                     sp = S[r, p]
                     sq = S[r, q]
-                    S[r, p] = c * sp - s * sq
-                    S[r, q] = s * sp + c * sq
+                    S[r, p] = cs * sp - sn * sq
+                    S[r, q] = sn * sp + cs * sq
                 for r in range(d):  # rows: J^T (S J)
                     sp = S[p, r]
                     sq = S[q, r]
-                    S[p, r] = c * sp - s * sq
-                    S[q, r] = s * sp + c * sq
+                    S[p, r] = cs * sp - sn * sq
+                    S[q, r] = sn * sp + cs * sq
                 for r in range(d):
                     qp = Q[r, p]
                     qq = Q[r, q]
-                    Q[r, p] = c * qp - s * qq
-                    Q[r, q] = s * qp + c * qq
+                    Q[r, p] = cs * qp - sn * qq
+                    Q[r, q] = sn * qp + cs * qq
     for i in range(d):
         lam[i] = S[i, i]

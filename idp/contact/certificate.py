@@ -101,6 +101,7 @@ class Certifier:
         inversion_free = n_inv == 0
         intersection_free, min_d, n_pairs = True, math.inf, 0
         if self.mesh is not None:
+            assert self.surface is not None  # the collision mesh is only built from a surface
             vs = np.ascontiguousarray(x[self.to_full], dtype=float)
             if not self.require_intersection_free:
                 from idp.contact.intersections import intersecting_pair_keys

@@ -169,8 +169,8 @@ def _segment_candidates(v: np.ndarray, s: np.ndarray) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     pairs = np.sort(np.concatenate(chunks).astype(np.int64), axis=1)
     pairs = np.unique(pairs, axis=0)
-    i, j = pairs[:, 0], pairs[:, 1]
-    overlap = np.all((lo[i] <= hi[j]) & (hi[i] >= lo[j]), axis=1)
+    first, second = pairs[:, 0], pairs[:, 1]
+    overlap = np.all((lo[first] <= hi[second]) & (hi[first] >= lo[second]), axis=1)
     return pairs[overlap]
 
 
@@ -225,6 +225,11 @@ def count_intersections(vertices: np.ndarray, faces: np.ndarray) -> int:
     return int(surface_intersecting_pairs(vertices, faces).shape[0])
 
 
+def _ordered_pair(p: tuple[int, ...], q: tuple[int, ...]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The two keys in sorted order (what ``tuple(sorted((p, q)))`` gives, typed as a pair)."""
+    return (p, q) if p <= q else (q, p)
+
+
 def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple[tuple[int, ...], tuple[int, ...]]]:
     """The intersecting primitive pairs of a surface as vertex-id keys that do not depend on edge numbering:
     ((sorted edge vertices), (sorted triangle vertices)) in 3D, ((segment a), (segment b)) sorted in 2D."""
@@ -236,7 +241,7 @@ def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple
         return set()
     if f.shape[1] == 2:
         a, b = np.sort(f[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
-        keys = {tuple(sorted((tuple(p), tuple(q)))) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
+        keys = {_ordered_pair(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
     else:
         e = unique_edges(f)
         a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)

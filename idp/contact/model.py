@@ -9,7 +9,7 @@ inside ``BarrierPotential`` (rebuilt when κ changes).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import ipctk
 import numpy as np
@@ -212,7 +212,8 @@ class ContactModel:
             return float("inf")
         if self.compiled:
             return float(np.sqrt(max(self._cb.minimum_sqdist(ev.collisions), 0.0)))
-        return float(np.sqrt(max(ev.collisions.compute_minimum_distance(self.mesh, ev.surface_positions), 0.0)))
+        collisions = cast("ipctk.NormalCollisions", ev.collisions)  # not compiled: ipctk built the collisions
+        return float(np.sqrt(max(collisions.compute_minimum_distance(self.mesh, ev.surface_positions), 0.0)))
 
     # -- stiffness ------------------------------------------------------------
     def initialize_kappa(

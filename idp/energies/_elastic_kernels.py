@@ -130,17 +130,17 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
                     t = 1.0 / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
                     if zeta < 0.0:
                         t = -t
-                c = 1.0 / math.sqrt(1.0 + t * t)
-                s = c * t
+                cs = 1.0 / math.sqrt(1.0 + t * t)
+                sn = cs * t
                 for r in range(d):
                     ap = A[r, p]
                     aq = A[r, q]
-                    A[r, p] = c * ap - s * aq
-                    A[r, q] = s * ap + c * aq
+                    A[r, p] = cs * ap - sn * aq
+                    A[r, q] = sn * ap + cs * aq
                     vp = V[r, p]
                     vq = V[r, q]
-                    V[r, p] = c * vp - s * vq
-                    V[r, q] = s * vp + c * vq
+                    V[r, p] = cs * vp - sn * vq
+                    V[r, q] = sn * vp + cs * vq
         if not rotated:
             break
     for c in range(d):

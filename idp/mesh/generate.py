@@ -15,8 +15,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from itertools import permutations
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from idp.errors import MeshError
 from idp.mesh.surface import boundary_faces
@@ -25,14 +27,16 @@ from idp.mesh.types import SurfaceMesh, VolumeMesh
 
 def _counts(resolution: int | Sequence[int], dim: int, name: str = "resolution") -> tuple[int, ...]:
     """Resolution as a dim-tuple of positive ints."""
-    res = (resolution,) * dim if np.isscalar(resolution) else tuple(resolution)
+    # typed Any: np.isscalar narrows to numpy's scalar union, which int() rejects; the checks below validate
+    value: Any = resolution
+    res: tuple[Any, ...] = (value,) * dim if np.isscalar(value) else tuple(value)
     if len(res) != dim or any(int(r) != r or int(r) < 1 for r in res):
         raise MeshError(f"{name} must be a positive int or {dim} positive ints, got {resolution!r}")
     return tuple(int(r) for r in res)
 
 
 def _vec(x: float | Sequence[float], dim: int, name: str) -> np.ndarray:
-    a = np.full(dim, float(x)) if np.isscalar(x) else np.asarray(x, dtype=np.float64)
+    a = np.full(dim, float(np.asarray(x))) if np.isscalar(x) else np.asarray(x, dtype=np.float64)
     if a.shape != (dim,) or not np.all(np.isfinite(a)):
         raise MeshError(f"{name} must be {dim} finite numbers, got {x!r}")
     return a
@@ -163,7 +167,7 @@ def box_surface(
     return SurfaceMesh(vol.vertices[used], remap[faces], source="box_surface")
 
 
-def revolve_profile(ys: Sequence[float], rs: Sequence[float], segments: int) -> SurfaceMesh:
+def revolve_profile(ys: npt.ArrayLike, rs: npt.ArrayLike, segments: int) -> SurfaceMesh:
     """Surface of revolution about the y axis of the profile (r(t), y(t)).
 
     Faces are outward oriented when the profile runs from bottom to top. An end with ``r == 0``
@@ -185,7 +189,7 @@ def revolve_profile(ys: Sequence[float], rs: Sequence[float], segments: int) -> 
     sizes = np.where(pole, 1, segments)
     base = np.concatenate([[0], np.cumsum(sizes)[:-1]])
 
-    blocks = []
+    blocks: list[npt.ArrayLike] = []
     for i in range(p):  # loop over profile points (rings), not over faces
         if pole[i]:
             blocks.append([[0.0, y[i], 0.0]])

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from idp.errors import MeshError
 
@@ -50,7 +51,7 @@ def rotation_matrix_2d(degrees: float) -> np.ndarray:
 def _rotation_2d(item) -> np.ndarray:
     """A 2D rotation item is a number of degrees, or ('z' or (0, 0, 1), degrees)."""
     if np.isscalar(item):
-        return rotation_matrix_2d(float(item))
+        return rotation_matrix_2d(float(np.asarray(item)))
     if len(item) == 2:
         axis, deg = item
         ok = (isinstance(axis, str) and axis.lower() == "z") or (
@@ -103,9 +104,9 @@ def place(
 
 def select_in_box(
     vertices: np.ndarray,
-    lo: Sequence[float],
-    hi: Sequence[float],
-    relative_to: tuple[Sequence[float], Sequence[float]] | None = None,
+    lo: npt.ArrayLike,
+    hi: npt.ArrayLike,
+    relative_to: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> np.ndarray:
     """Indices (int64) of vertices inside the closed box [lo, hi].
 

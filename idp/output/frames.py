@@ -82,7 +82,7 @@ class FrameWriter:
         offset = 0
         for p in self.parts:
             ids, inv = np.unique(p.surface.reshape(-1), return_inverse=True)
-            local = inv.reshape(p.surface.shape) + offset + 1
+            local: np.ndarray = inv.reshape(p.surface.shape) + offset + 1
             k = p.surface.shape[1]
             line = keyword + (" %d" * k) + "\n"
             self._obj_face_text.append((line * local.shape[0]) % tuple(local.reshape(-1).tolist()))
@@ -98,6 +98,7 @@ class FrameWriter:
         self._block_part: list[int] = []
         for i, p in enumerate(self.parts):
             if p.kind == "deformable":
+                assert p.elements is not None  # check_parts (in __init__) rejects a deformable part without elements
                 block = (vol_type, p.elements)
             else:
                 block = (surf_type, p.surface)
@@ -160,12 +161,12 @@ class FrameWriter:
         for name, per_part in (cell_data or {}).items():
             blocks = []
             for (_, cells), i in zip(self._cells, self._block_part, strict=True):
-                a = per_part.get(i)
-                if a is None:
-                    a = np.zeros(cells.shape[0])
-                elif a.shape[0] != cells.shape[0]:
-                    raise ValueError(f"cell_data[{name!r}] part {i}: {a.shape[0]} values for {cells.shape[0]} cells")
-                blocks.append(np.ascontiguousarray(a, dtype=float))
+                vals = per_part.get(i)
+                if vals is None:
+                    vals = np.zeros(cells.shape[0])
+                elif vals.shape[0] != cells.shape[0]:
+                    raise ValueError(f"cell_data[{name!r}] part {i}: {vals.shape[0]} values for {cells.shape[0]} cells")
+                blocks.append(np.ascontiguousarray(vals, dtype=float))
             cdata[name] = blocks
         return meshio.Mesh(pts, list(self._cells), point_data=pdata, cell_data=cdata)
 

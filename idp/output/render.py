@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -130,10 +131,11 @@ def _panel_3d(ax, parts: list[Part], x: np.ndarray, cam, cages: list[bool]) -> n
         if allp.shape[0] <= _DENSE:  # antialiased faces with darker mesh edges (the edges hide seams)
             edges = allc.copy()
             edges[:, :3] *= 0.6
-            style = dict(edgecolors=edges, linewidths=0.3)
+            style: dict[str, Any] = dict(edgecolors=edges, linewidths=0.3)
         else:  # dense: no edges (they moire) and no antialiasing (it leaves seams between tiny faces)
             style = dict(edgecolors="none", linewidths=0.0, antialiased=False)
-        ax.add_collection(PolyCollection(allp, facecolors=allc, zorder=3, snap=False, **style))
+        # an (N, k, 2) array is PolyCollection's fast path; matplotlib's stub only names Sequence
+        ax.add_collection(PolyCollection(allp, facecolors=allc, zorder=3, snap=False, **style))  # type: ignore[arg-type]
     return np.concatenate(used) if used else np.zeros((0, 2))
 
 
@@ -145,7 +147,7 @@ def _panel_2d(ax, parts: list[Part], x: np.ndarray) -> np.ndarray:
             tri = x[p.elements]
             rgb = np.asarray(to_rgb(PALETTE[i % len(PALETTE)]))
             if tri.shape[0] > _DENSE:
-                style = dict(edgecolors="none", linewidths=0.0, antialiased=False)
+                style: dict[str, Any] = dict(edgecolors="none", linewidths=0.0, antialiased=False)
             else:
                 style = dict(edgecolors=[rgb * 0.6], linewidths=0.4)
             ax.add_collection(PolyCollection(tri, facecolors=[rgb], zorder=2, snap=False, **style))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +29,7 @@ from idp.stepper.system import Body, RestShapeSchedule, System
 
 log = logging.getLogger("idp")
 
-GENERATORS = {
+GENERATORS: dict[str, Callable[..., VolumeMesh | SurfaceMesh]] = {
     "ball": gen.tet_ball,
     "ellipsoid": gen.tet_ellipsoid,
     "tet_box": gen.tet_box,
@@ -92,19 +94,24 @@ def build_scene(
     ``with_handles``: set up the Dirichlet machinery even when the scene has no handles (for targets streamed
     from code, :attr:`idp.stepper.handles.HandleSet.stream`)."""
     dim = scene.dim
-    deformables, obstacles = [], []
+    deformables: list[tuple[int, Any, VolumeMesh, np.ndarray]] = []
+    obstacles: list[tuple[int, Any, SurfaceMesh, np.ndarray]] = []
     for i, obj in enumerate(scene.objects):
         try:
             mesh = _load_object_mesh(obj, dim)
         except MeshError as exc:
             raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
         verts = _place(obj, mesh.vertices, dim)
-        (deformables if obj.kind == "deformable" else obstacles).append((i, obj, mesh, verts))
+        if obj.kind == "deformable":
+            assert isinstance(mesh, VolumeMesh)  # _load_object_mesh checks the kind
+            deformables.append((i, obj, mesh, verts))
+        else:
+            assert isinstance(mesh, SurfaceMesh)
+            obstacles.append((i, obj, mesh, verts))
 
     # global numbering: deformables first, then obstacles (static)
     chunks, parts, bodies = [], [], []
     fixed = []
-    masses = []
     surfaces = []
     offset = 0
     for i, obj, mesh, verts in deformables:
@@ -355,13 +362,13 @@ def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) 
             )
             try:
                 if hs.select_on == "rest":
-                    h.select(x)
-                    bad = h.vertices[pinned[h.vertices]]
+                    selected = h.select(x)
+                    bad = selected[pinned[selected]]
                     if bad.size:
                         raise SceneError(
                             f"selects {bad.size} vertices that `fixed` pins (e.g. local vertex {int(bad[0] - ids[0])})"
                         )
-                    h.motion.check_count(h.vertices.size)
+                    h.motion.check_count(selected.size)
             except (SceneError, ValueError) as exc:
                 msg = str(exc).replace(f"handle {h.name!r}: ", "")
                 raise SceneError(f"{key} ({hs.name}): {msg}") from exc

@@ -33,6 +33,11 @@ def _vec(v, d: int | None = None) -> np.ndarray | None:
     return None if v is None else np.asarray(v, dtype=float)
 
 
+def _required_vec(v) -> np.ndarray:
+    """A field the ``MotionSpec`` validator requires for this motion type (never None here)."""
+    return np.asarray(v, dtype=float)
+
+
 def _load_targets(path: Path, key: str) -> np.ndarray:
     """(k, d) or (F, k, d) float array from .npy / .npz (first array, or the one named ``targets``)."""
     try:
@@ -59,16 +64,16 @@ def motion_from_spec(spec, key: str, dt: float) -> mo.Motion:
     if t == "fixed":
         return mo.Fixed()
     if t == "translate":
-        return mo.Translate(_vec(spec.velocity))
+        return mo.Translate(_required_vec(spec.velocity))
     if t == "rotate":
         return mo.Rotate(float(spec.degrees_per_second), center if center is not None else 0.0, _vec(spec.axis))
     if t == "scale":
-        return mo.Scale(_vec(spec.rate), center if center is not None else 0.0)
+        return mo.Scale(_required_vec(spec.rate), center if center is not None else 0.0)
     if t == "keyframes":
         keys = []
         for k in spec.keyframes:
             d = None if k.translate is None else len(k.translate)
-            tr = _vec(k.translate) if k.translate is not None else 0.0
+            tr = _required_vec(k.translate) if k.translate is not None else 0.0
             if k.rotate is None or k.rotate.degrees == 0:
                 rv = np.zeros(3 if (d or 3) == 3 else 1)
             elif k.rotate.axis is None:  # 2D

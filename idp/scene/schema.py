@@ -638,31 +638,29 @@ class Scene(_Model):
         raise KeyError(name)
 
 
-MODELS: dict[str, type[BaseModel]] = {
-    c.__name__: c
-    for c in (
-        Scene,
-        SceneObject,
-        TimeConfig,
-        SolverConfig,
-        ContactConfig,
-        OutputConfig,
-        Material,
-        RestShape,
-        FixedSelector,
-        Rotation,
-        SelectionSpec,
-        SphereSpec,
-        MotionSpec,
-        KeyframeSpec,
-        RotationSpec,
-        HandleSpec,
-        KinematicSpec,
-        DirichletConfig,
-        PlasticitySpec,
-        MaterialStageSpec,
-        RestScriptSpec,
-        *GENERATORS.values(),
-    )
-}
+_MODEL_CLASSES: tuple[type[BaseModel], ...] = (
+    Scene,
+    SceneObject,
+    TimeConfig,
+    SolverConfig,
+    ContactConfig,
+    OutputConfig,
+    Material,
+    RestShape,
+    FixedSelector,
+    Rotation,
+    SelectionSpec,
+    SphereSpec,
+    MotionSpec,
+    KeyframeSpec,
+    RotationSpec,
+    HandleSpec,
+    KinematicSpec,
+    DirichletConfig,
+    PlasticitySpec,
+    MaterialStageSpec,
+    RestScriptSpec,
+    *GENERATORS.values(),
+)
+MODELS: dict[str, type[BaseModel]] = {c.__name__: c for c in _MODEL_CLASSES}
 """Every scene model by class name (used to interpret error locations)."""

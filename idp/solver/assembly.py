@@ -58,6 +58,11 @@ class FreeDofMap:
 class FixedPatternAssembler:
     """Assembles Σ_e H_e (element blocks) + diag(d) into a CSR matrix with a pattern fixed at construction."""
 
+    # exactly one of the two scatter maps is set: per vertex block (with its layout) or per DOF
+    layout: BlockLayout | None
+    _block_scatter: list[tuple[np.ndarray, np.ndarray]] | None
+    _element_scatter: list[np.ndarray] | None
+
     def __init__(self, element_dofs: list[np.ndarray], dof_map: FreeDofMap, dim: int | None = None):
         """``element_dofs``: per energy, (m, k) global DOFs of each element (vertex·d + coordinate).
         With ``dim`` given and whole vertices pinned, the pattern is built per vertex block, which needs
@@ -65,8 +70,7 @@ class FixedPatternAssembler:
         self.dof_map = dof_map
         n = dof_map.num_free
         self.shape = (n, n)
-        whole = dim is not None and _pins_whole_vertices(dof_map.free_mask, dim)
-        if whole:
+        if dim is not None and _pins_whole_vertices(dof_map.free_mask, dim):
             self._build_blocks(element_dofs, dof_map, dim)
         else:
             self._build_generic(element_dofs, dof_map)
@@ -167,6 +171,7 @@ class FixedPatternAssembler:
                 data, base[first : first + g], stride[first : first + g], blocks, float(weight), self._scatter_bounds
             )
             return
+        assert self._element_scatter is not None  # built per DOF when not per vertex block
         kk = blocks.shape[1] * blocks.shape[2]
         idx = self._element_scatter[energy_index][first * kk : (first + blocks.shape[0]) * kk]
         _scatter_add(data, idx, blocks.reshape(-1), float(weight))

@@ -145,6 +145,8 @@ class CholmodSolver(LinearSolver):
 
     def _set_values(self, vals: np.ndarray) -> None:
         """Copy the lower-triangle values into the analysed (possibly larger) pattern."""
+        # only called once a pattern has been analysed, which sets all three
+        assert self._pos is not None and self._keys is not None and self._S is not None
         if self._pos.size == self._keys.size:
             self._S.V = cvxopt.matrix(vals)
         else:

@@ -284,6 +284,7 @@ class GrowingBlockPattern:
         if self._folded is None:
             raise RuntimeError("exact_matrix() needs a folded matrix from the last assemble()")
         data, keys = self._folded
+        assert self.fold_correction is not None  # set together with _folded by _fold()
         K = self.fold_correction.tocoo()
         old = self.layout
         self._set_extra(np.union1d(self.extra, self._outside_base(keys)))

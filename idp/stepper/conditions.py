@@ -9,10 +9,14 @@ becomes the rest shape at the end of a chosen step).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from idp.energies.plasticity import VonMisesPlasticity
+
+if TYPE_CHECKING:  # annotations only
+    from idp.stepper.system import Body
 
 
 def _rest_state(elastic) -> dict[str, np.ndarray]:
@@ -29,7 +33,7 @@ def _load_rest_state(elastic, st: dict[str, np.ndarray]) -> None:
 class MaterialStages:
     """Young's modulus / Poisson ratio of one body per step range: stage i applies from step ``starts[i]`` + 1."""
 
-    body: object
+    body: Body
     starts: list[int]
     materials: list[tuple[float, float]]
     initial: tuple[float, float]
@@ -50,7 +54,7 @@ class MaterialStages:
 class Plasticity:
     """Von Mises plasticity of one body, return-mapped at the start of every step (paper §4.5)."""
 
-    body: object
+    body: Body
     model: VonMisesPlasticity
     part_index: int
     yielded: list[int] = field(default_factory=list)
@@ -79,7 +83,7 @@ class Plasticity:
 class Bake:
     """At the end of step ``step`` the body's current shape becomes its rest shape (paper §4.5 "bake")."""
 
-    body: object
+    body: Body
     step: int
     done: bool = False
 

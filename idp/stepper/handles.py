@@ -63,9 +63,9 @@ class Handle:
         """Targets of step ``step`` (1-based) given the current positions ``x`` (the start of that step)."""
         if self.X is None or self.vertices is None:
             if self.vertices is None or self.select_on == "current":
-                self.select(x)
+                selected = self.select(x)
                 try:
-                    self.motion.check_count(self.vertices.size)
+                    self.motion.check_count(selected.size)
                 except ValueError as exc:
                     raise SceneError(f"handle {self.name!r}: {exc}") from exc
             self.X = x[self.vertices].copy()
@@ -105,11 +105,14 @@ class HandleSet:
     stream: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None
 
     def before_step(self, system, step: int, x: np.ndarray) -> None:
-        verts, targets, owner = [], [], []
+        verts: list[np.ndarray] = []
+        targets: list[np.ndarray] = []
+        owner: list[str] = []
         for h in self.handles:
             if not h.active(step):
                 continue
             t = h.targets(step, x, self.dt)
+            assert h.vertices is not None  # targets() selects them
             if self.pinned is not None and np.any(self.pinned[h.vertices]):
                 raise SceneError(f"handle {h.name!r} selects vertices that `fixed` pins (step {step})")
             verts.append(h.vertices)
@@ -171,6 +174,7 @@ def check_static_overlaps(handles: list[Handle], num_steps: int) -> None:
             b_end = num_steps if b.release is None else b.release
             if max(a.start, b.start) >= min(a_end, b_end):
                 continue
+            assert a.vertices is not None and b.vertices is not None  # only handles with vertices were kept
             shared = np.intersect1d(a.vertices, b.vertices)
             if shared.size:
                 raise SceneError(

@@ -20,7 +20,9 @@ from idp.mesh.placement import rotation_matrix, rotation_matrix_2d
 def _rotation(axis: np.ndarray | None, degrees: float, dim: int) -> np.ndarray:
     if dim == 2:
         return rotation_matrix_2d(degrees)
-    return rotation_matrix(tuple(float(a) for a in axis), degrees)  # type: ignore[arg-type]
+    if axis is None:  # (iterating None raised this TypeError before)
+        raise TypeError("a 3D rotation needs an axis")
+    return rotation_matrix(tuple(float(a) for a in axis), degrees)
 
 
 class Motion:
@@ -64,7 +66,7 @@ class Rotate(Motion):
     """Rotation by ω·t (degrees per second) about ``axis`` (3D; 2D rotates in the plane) through ``center``."""
 
     degrees_per_second: float
-    center: np.ndarray
+    center: np.ndarray | float  # 0.0: the origin
     axis: np.ndarray | None = None
 
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
@@ -78,7 +80,7 @@ class Scale(Motion):
     """Scaling about ``center`` by 1 + rate·t per axis (rate a scalar or per axis; factor kept > 0)."""
 
     rate: np.ndarray
-    center: np.ndarray
+    center: np.ndarray | float  # 0.0: the origin
 
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
         c = np.asarray(self.center, dtype=float)
@@ -93,7 +95,7 @@ class Keyframe:
     """A rigid-plus-scale transform at time ``time``: x = R (s (X − c)) + c + translate."""
 
     time: float
-    translate: np.ndarray
+    translate: np.ndarray | float  # 0.0: no translation
     rotation_vector: np.ndarray  # 3D: axis · radians; 2D: (radians,)
     scale: np.ndarray
 
@@ -106,10 +108,10 @@ class Keyframes(Motion):
     the last the last holds."""
 
     keys: list[Keyframe]
-    center: np.ndarray
+    center: np.ndarray | float  # 0.0: the origin
     smooth: bool = False
 
-    def _at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _at(self, t: float) -> tuple[np.ndarray | float, np.ndarray, np.ndarray]:
         ks = self.keys
         if t <= ks[0].time:
             k = ks[0]

@@ -11,6 +11,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -172,7 +173,7 @@ def run_simulation(
     bc = system.step_constraint
     stopped_reason = "step count reached"
     step = start_step
-    records = list(previous)
+    records: list[dict[str, Any]] = list(previous)
     total_its = sum(int(r.get("newton_iterations", 0)) for r in previous)
     nonconverged = sum(1 for r in previous if not r.get("converged", True))
     unmet_steps = sum(1 for r in previous if not r.get("dirichlet", {}).get("met", True))
@@ -195,7 +196,7 @@ def run_simulation(
             timings = dict(res.timings)
             timings["certificate"] = t_cert
             timings["other"] = max(step_time - sum(timings.values()), 0.0)
-            rec = {
+            rec: dict[str, Any] = {
                 "step": step,
                 "wall_time": step_time,
                 "newton_iterations": res.iterations,
@@ -256,7 +257,7 @@ def run_simulation(
                 writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
             _save_checkpoint(checkpoint, x, step, system)
             if progress is not None:
-                post = {"its": res.iterations, "contacts": res.num_contacts}
+                post: dict[str, Any] = {"its": res.iterations, "contacts": res.num_contacts}
                 if bc_report is not None:
                     post["BC"] = "met" if bc_report["met"] else f"UNMET {bc_report['residual_max']:.1e}"
                 if fill is not None:

@@ -62,7 +62,7 @@ class System:
     conditions: list = field(default_factory=list)
     linear_terms: list = field(default_factory=list)  # value(x)/gradient(x) only, e.g. −β xᵀN (no Hessian)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
         self.terms: list[WeightedTerm] = [WeightedTerm(b.name, b.elastic) for b in self.bodies] + list(self.extra_terms)

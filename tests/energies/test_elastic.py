@@ -78,7 +78,8 @@ def test_meshes(d: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return [random_simplices(d, 4, rng), box_mesh(d)]
 
 
-test_meshes.__test__ = False  # helper, not a test
+# helper, not a test (pytest reads __test__ on any object; mypy knows no such function attribute)
+test_meshes.__test__ = False  # type: ignore[attr-defined]
 
 
 def signed_singular_values(F: np.ndarray) -> np.ndarray:
@@ -261,7 +262,7 @@ def _F_cases(d: int, rng: np.random.Generator, inverted: bool = False) -> list[n
     ``inverted`` also reflected / degenerate ones (signed last singular value <= 0, away from s_i + s_j = 0)."""
     R1, R2 = _rotation(d, rng), _rotation(d, rng)
     if d == 3:
-        sigmas = [
+        sigmas: list[list[float]] = [
             [1, 1, 1],
             [2.0, 2.0, 0.5],
             [1.5, 0.4, 0.4],
@@ -297,7 +298,7 @@ def test_projection_equals_eigh_clamped_exact_hessian(model: str, d: int) -> Non
             w = 7.0 * Ey
             E = ElasticEnergy(model, X, T, Ey, nu, weight=w if model == "symmetric_dirichlet" else None)
             mu, lam = lame_parameters(Ey, nu)
-            Kex = _dP_dF(model, F, mu, lam, w)
+            Kex = _dP_dF(model, F, float(mu), float(lam), w)
             np.testing.assert_allclose(Kex, Kex.T, atol=1e-9 * np.abs(Kex).max())
             ev, Q = np.linalg.eigh(0.5 * (Kex + Kex.T))
             Kproj = (Q * np.maximum(ev, 0)) @ Q.T

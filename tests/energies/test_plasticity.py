@@ -50,6 +50,7 @@ def test_return_mapping_lands_on_the_yield_surface(d: int, model: str, hardening
     J_before = np.linalg.det(E.deformation_gradients(x))
     Dm_before = np.linalg.inv(E.Dm_inv)
     assert P.apply(E, x) == 1
+    assert P.plastic_strain is not None
     alpha = P.plastic_strain[0]
     after = dev_log_strain_norm(E, x)[0]
     # exactly on the (hardened) surface: 2 mu |dev eps| = tau + H alpha, and alpha = the strain removed
@@ -114,6 +115,7 @@ def test_mixed_mesh_yields_only_the_elements_over_the_limit_and_keeps_the_rest_t
     np.testing.assert_array_equal(E.Dm_inv[[0, 2, 4]], Dm_inv[[0, 2, 4]])
     np.testing.assert_allclose(dev_log_strain_norm(E, x)[[1, 3]], 0.1, rtol=1e-12)
     np.testing.assert_array_equal(E.rest_transform, np.diag([1.0, 1.1, 1.1]))
+    assert P.plastic_strain is not None
     assert P.plastic_strain[3] > P.plastic_strain[1] > 0
     assert np.all(P.plastic_strain[[0, 2, 4]] == 0)
 
@@ -179,11 +181,11 @@ def minimise(E: ElasticEnergy, x: np.ndarray, free: np.ndarray, iters: int = 100
     rows = np.repeat(dofs, k, axis=1).ravel()
     cols = np.tile(dofs, (1, k)).ravel()
     n = x.size
-    g0 = None
+    g0: float | None = None
     for _ in range(iters):
         f, g, H = E.value_gradient_hessian(x)
         g = np.where(free, g, 0.0)
-        g0 = np.linalg.norm(g) if g0 is None else g0
+        g0 = float(np.linalg.norm(g)) if g0 is None else g0
         if np.linalg.norm(g) <= 1e-10 * max(g0, 1.0):
             break
         A = sp.coo_matrix((H.ravel(), (rows, cols)), shape=(n, n)).tocsr()[free][:, free]
@@ -230,6 +232,7 @@ def test_bar_pulled_and_released_keeps_a_permanent_stretch_only_when_plastic(pla
     if plastic:
         # permanent deformation: the bar stays much longer than its original length
         assert length > 1.3 * L
+        assert P is not None and P.plastic_strain is not None
         assert np.all(P.plastic_strain > 0)
         assert E.value(x) < 0.05 * E.volumes.sum() * E.mu[0]  # mostly relaxed: what is left is residual stress
     else:

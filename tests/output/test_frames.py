@@ -30,10 +30,10 @@ def _outward(tri: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 def cube_scene() -> tuple[np.ndarray, list[Part]]:
     """A unit cube of 6 tets (ids 0..7) inside a box obstacle of 12 triangles (ids 8..15)."""
-    tets = []
+    tet_list = []
     for a, b, _ in permutations(range(3)):
-        tets.append([0, 1 << a, (1 << a) | (1 << b), 7])
-    tets = np.array(tets)
+        tet_list.append([0, 1 << a, (1 << a) | (1 << b), 7])
+    tets = np.array(tet_list)
     p = CUBE[tets]
     vol = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])
     tets[vol < 0] = tets[vol < 0][:, [0, 2, 1, 3]]
@@ -97,7 +97,9 @@ def check_obj(path: Path, parts: list[Part], x: np.ndarray, kind: str) -> None:
 def read_pvd(path: Path) -> list[tuple[float, str]]:
     root = ET.parse(path).getroot()
     assert root.tag == "VTKFile" and root.get("type") == "Collection"
-    return [(float(d.get("timestep")), d.get("file")) for d in root.find("Collection")]
+    collection = root.find("Collection")
+    assert collection is not None
+    return [(float(d.attrib["timestep"]), d.attrib["file"]) for d in collection]
 
 
 def test_3d_obj_vtu_pvd(tmp_path: Path) -> None:

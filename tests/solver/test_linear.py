@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -19,6 +20,9 @@ from idp.solver.linear import (
     make_linear_solver,
     nested_dissection_ordering,
 )
+
+if TYPE_CHECKING:  # imported in the fixture, after the cvxopt importorskip
+    from idp.solver.cholmod_cvxopt import CholmodSolver
 
 # ----------------------------------------------------------------------------- matrices
 
@@ -69,7 +73,7 @@ def rel_residual(A: sp.spmatrix, x: np.ndarray, b: np.ndarray) -> float:
 # ----------------------------------------------------------------------------- fixtures
 
 
-def _cholmod_solver(d: int, **kw: object) -> LinearSolver:
+def _cholmod_solver(d: int, **kw: bool) -> CholmodSolver:
     pytest.importorskip("cvxopt", reason="cvxopt not importable: CHOLMOD backend (pip install idp[cholmod]) not tested")
     from idp.solver.cholmod_cvxopt import CholmodSolver
 
@@ -346,6 +350,7 @@ def test_cholmod_reuse_ordering_option(A0: sp.csr_matrix, A0_contact: sp.csr_mat
     d.factorize(A0)
     q0 = d._perm
     d.factorize(A0_contact)
+    assert d._perm is not None and q0 is not None
     assert not np.array_equal(d._perm, q0)
 
 

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from test_contact_pattern import _chain_problem, _pair_hessian, _reference
+
+# pytest puts this test directory on sys.path; mypy checks tests/ by file and cannot resolve the sibling module
+from test_contact_pattern import _chain_problem, _pair_hessian, _reference  # type: ignore[import-not-found]
 
 from idp.solver.contact_pattern import GrowingBlockPattern
 from idp.solver.pcg import pcg_from_majorant
