@@ -157,8 +157,8 @@ def run_simulation(
     if start_step == 0:
         writer.write(0, x0, time=0.0)
     fill0 = _fill_fraction(system, x0)
-    for rec in previous:
-        stats.add_step(rec)
+    for earlier_record in previous:
+        stats.add_step(earlier_record)
     stats.add_step({"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True})
 
     progress = None
