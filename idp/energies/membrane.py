@@ -111,7 +111,18 @@ class MembraneEnergy(StencilTerm):
         A = np.einsum("mci,mcj->mij", D, D)
         return 0.5 * self.rest_metric_inv @ (A - self.rest_metric)
 
-    def _kernel(self, x, first, last, want_grad, want_hess, project, e, g, h) -> None:  # noqa: ANN001
+    def _kernel(
+        self,
+        x: np.ndarray,
+        first: int,
+        last: int,
+        want_grad: bool,
+        want_hess: bool,
+        project: bool,
+        e: np.ndarray,
+        g: np.ndarray,
+        h: np.ndarray,
+    ) -> None:
         _k.membrane_terms(
             x,
             self.triangles[first:last],
