@@ -5,7 +5,8 @@
 * ``vertex_areas``: lumped (barycentric) vertex areas Σ_{t∋i} A_t/3.
 * ``cotangent_laplacian``: L_ij = ½ (cot α_ij + cot β_ij) for an edge ij, L_ii = -Σ_j L_ij: negative
   semidefinite, L·1 = 0, and L f = 0 at interior vertices of a flat mesh for linear f.
-* ``LaplacianSmoothing``: E = -γ ½ xᵀ L x (each coordinate) as an ``ElementTerm`` over triangles.
+* ``LaplacianSmoothing``: E = -γ ½ xᵀ L x (each coordinate) as an ``ElementTerm`` over triangles (9x9
+  blocks, PSD per triangle without any clamping: see the class).
 * ``NormalForce``: the linear term E = -β Σ_i N_i·x_i with N frozen (``update`` once per step).
 """
 
@@ -93,12 +94,15 @@ class LaplacianSmoothing(StencilTerm):
     """E(x) = γ/2 Σ_t Σ_c w_tc |x_{c+1} - x_{c+2}|² = -γ ½ xᵀ L_w x (per coordinate), as 9x9 blocks γ K_t ⊗ I₃.
 
     The edge weights w_tc = ½ cot of the opposite angle are taken from ``vertices`` at construction (or
-    ``set_weights``) and fixed.  With ``clamp_negative`` (default) a triangle's negative cot weights
-    (obtuse angles) are set to 0, so every block K_t (a weighted graph Laplacian of the triangle) is PSD
-    and E is convex; L_w is then the clamped cotangent Laplacian (= L where no angle is obtuse).  Without
-    clamping, ``project`` replaces K_t by its PSD part (eigen-decomposition of the 3x3 K_t)."""
+    ``set_weights``) and fixed, so the Hessian is the constant -γ L_w ⊗ I₃.  Each K_t (the triangle's
+    3x3 cotangent matrix) is the P1 finite-element stiffness matrix A_t ∇φᵀ∇φ of that triangle, a Gram
+    matrix, hence PSD *even when an angle is obtuse* (a negative cot weight): no clamping is needed for
+    PSD blocks, and by default none is done (L_w = L exactly).  ``clamp_negative=True`` sets negative
+    weights to 0 (L_w then has non-negative off-diagonals, an M-matrix, at the price of no longer being the
+    cotangent Laplacian on obtuse meshes); blocks stay PSD either way.  ``project`` replaces K_t by its PSD
+    part (3x3 eigen-decomposition), which only removes rounding-level negative eigenvalues."""
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, gamma: float, clamp_negative: bool = True) -> None:
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, gamma: float, clamp_negative: bool = False) -> None:
         X, T = _mesh(vertices, triangles)
         if not (np.isfinite(gamma) and gamma >= 0):
             raise ValueError(f"gamma must be finite and >= 0, got {gamma!r}")
@@ -110,7 +114,7 @@ class LaplacianSmoothing(StencilTerm):
         self.set_weights(X)
 
     def set_weights(self, vertices: np.ndarray) -> None:
-        """Recompute the (clamped) cotangent edge weights from ``vertices`` (n,3)."""
+        """Recompute the cotangent edge weights (clamped at 0 if ``clamp_negative``) from ``vertices`` (n,3)."""
         w = cotangent_weights(positions(vertices, self.num_vertices), self.triangles)
         if self.clamp_negative:
             w = np.maximum(w, 0.0)
