@@ -208,21 +208,18 @@ def _bending_chunk(
                 v = s * (gt[i] * gt[j] + delta * 0.5 * (Ht[i, j] + Ht[j, i]))
                 Ht[i, j] = v
                 Ht[j, i] = v
+        # pull back to the vertices: x1, x2, x3 are e, a, b; x0 carries minus the sum over u-blocks
         H = hess_out[k]
-        for v in range(4):
-            for w in range(4):
-                for al in range(3):
-                    for be in range(3):
-                        acc = 0.0
-                        for p in range(3):
-                            sp_ = sel[p, v]
-                            if sp_ == 0.0:
-                                continue
-                            for q in range(3):
-                                sq = sel[q, w]
-                                if sq != 0.0:
-                                    acc += sp_ * sq * Ht[3 * p + al, 3 * q + be]
-                        H[3 * v + al, 3 * w + be] = acc
+        for al in range(9):
+            for be in range(9):
+                H[3 + al, 3 + be] = Ht[al, be]
+        for c in range(3):
+            for j in range(9):
+                H[c, 3 + j] = -(Ht[c, j] + Ht[3 + c, j] + Ht[6 + c, j])
+                H[3 + j, c] = H[c, 3 + j]
+        for c in range(3):
+            for d in range(3):
+                H[c, d] = -(H[c, 3 + d] + H[c, 6 + d] + H[c, 9 + d])
         if project:
             project_psd(H, 12, work)
 
