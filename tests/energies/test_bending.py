@@ -1,0 +1,209 @@
+"""Tests of idp.energies.bending and idp.mesh.hinges: hinge extraction (count, orientation, non-manifold
+error), the signed dihedral angle (flat, prescribed folds up to ±(π - 0.05), convex tetrahedron), the
+energy formula, central-difference checks of the analytic gradient and Hessian on random, nearly flat
+and sharply folded hinges, zero energy / gradient at rest, rigid-motion invariance and PSD projection.
+
+Tolerances: central differences with ε = 1e-6 on O(1) coordinates have truncation ~ε²|f'''| and
+round-off ~u|f|/ε, both ≲ 1e-9 relative; 1e-6 (gradient) and 1e-5 (Hessian) are safe yet catch any
+wrong term.  Near a fold of π - 0.05 the third derivatives grow like 1/h², still ≪ 1/ε²."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from idp.energies.bending import BendingEnergy, bending_stiffness, dihedral_angles
+from idp.energies.term import ElementTerm
+from idp.mesh.generate import tri_rectangle
+from idp.mesh.hinges import triangle_hinges
+
+EPS = 1e-6
+
+
+def _hinge(phi: float) -> np.ndarray:
+    """Edge x0=(0,0,0)–x1=(1,0,0), x2 in the plane z = 0, x3 rotated by phi about the edge (θ = phi)."""
+    return np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.3, 1.0, 0.0], [0.6, -np.cos(phi), -np.sin(phi)]])
+
+
+def _sheet(res: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    m = tri_rectangle((0.0, 0.0), (1.0, 1.0), (res, res))
+    X = np.zeros((m.vertices.shape[0], 3))
+    X[:, :2] = m.vertices
+    return X, m.elements
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
+    g = np.zeros(x.size)
+    for i in range(x.size):
+        d = np.zeros(x.size)
+        d[i] = EPS
+        g[i] = (f(x + d.reshape(x.shape)) - f(x - d.reshape(x.shape))) / (2 * EPS)
+    return g
+
+
+def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
+    H = np.zeros((x.size, x.size))
+    for i in range(x.size):
+        d = np.zeros(x.size)
+        d[i] = EPS
+        H[:, i] = (grad(x + d.reshape(x.shape)) - grad(x - d.reshape(x.shape))) / (2 * EPS)
+    return H
+
+
+def _assemble(term, blocks: np.ndarray, n: int) -> np.ndarray:
+    H = np.zeros((3 * n, 3 * n))
+    for dofs, b in zip(term.element_dofs(), blocks, strict=True):
+        H[np.ix_(dofs, dofs)] += b
+    return H
+
+
+# ------------------------------------------------------------------ hinges
+
+
+def test_hinges_of_a_grid_are_the_interior_edges_and_follow_the_winding() -> None:
+    X, T = _sheet(2)  # 9 vertices, 8 triangles, 16 edges of which 8 interior
+    H, F = triangle_hinges(T, return_faces=True)
+    assert H.shape == (8, 4) and F.shape == (8, 2)
+    for (x0, x1, x2, x3), (f1, f2) in zip(H, F, strict=True):
+        t1, t2 = T[f1].tolist(), T[f2].tolist()
+        k = t1.index(x0)
+        assert t1[(k + 1) % 3] == x1 and t1[(k + 2) % 3] == x2  # face 1 = (x0, x1, x2) in winding order
+        k = t2.index(x1)
+        assert t2[(k + 1) % 3] == x0 and t2[(k + 2) % 3] == x3  # consistent mesh: face 2 = (x1, x0, x3)
+    np.testing.assert_allclose(dihedral_angles(X, H), 0.0, atol=1e-15)
+
+
+def test_non_manifold_edge_is_named() -> None:
+    T = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    with pytest.raises(ValueError, match=r"edge \(0, 1\) has 3 faces"):
+        triangle_hinges(T)
+    assert triangle_hinges(np.array([[0, 1, 2]])).shape == (0, 4)
+
+
+# ------------------------------------------------------------------ angle and energy
+
+
+@pytest.mark.parametrize("phi", [0.0, 1e-7, -1e-4, 0.5, -1.2, 2.5, np.pi - 0.05, -(np.pi - 0.05)])
+def test_signed_angle_of_a_prescribed_fold(phi: float) -> None:
+    theta = dihedral_angles(_hinge(phi), np.array([[0, 1, 2, 3]]))[0]
+    assert theta == pytest.approx(phi, abs=1e-14)
+
+
+def test_convex_closed_surface_has_positive_angles() -> None:
+    # regular tetrahedron, outward winding: every exterior dihedral angle is π - arccos(1/3)
+    X = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+    T = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    H = triangle_hinges(T)
+    assert H.shape == (6, 4)
+    np.testing.assert_allclose(dihedral_angles(X, H), np.pi - np.arccos(1.0 / 3.0), rtol=1e-14)
+
+
+def test_energy_formula_and_stiffness() -> None:
+    Y, nu, t, mult = 3.0e3, 0.3, 0.05, 2.0
+    kb = bending_stiffness(Y, nu, t, mult)
+    assert kb == pytest.approx(Y * t**3 / (24 * (1 - nu**2)) * mult)
+    E = BendingEnergy(_hinge(0.0), [[0, 1, 2, 3]], Y, nu, t, mult)
+    # |ē| = 1, Ā1 = Ā2 = ½ -> weight 3|ē|²/(Ā1+Ā2) = 3
+    assert E.weights[0] == pytest.approx(3.0)
+    assert E.value(_hinge(0.7)) == pytest.approx(kb * 3.0 * 0.7**2, rel=1e-13)
+    E.set_rest_angles(0.2)
+    assert E.value(_hinge(0.7)) == pytest.approx(kb * 3.0 * 0.5**2, rel=1e-12)
+    assert E.value(_hinge(0.2)) == pytest.approx(0.0, abs=1e-20)
+
+
+# ------------------------------------------------------------------ derivatives
+
+
+def _cases() -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """name -> (rest, hinges, current)."""
+    rng = np.random.default_rng(4)
+    X, T = _sheet(2)
+    X[:, 2] = 0.1 * rng.normal(size=len(X))
+    H = triangle_hinges(T)
+    single = np.array([[0, 1, 2, 3]])
+    return {
+        "random_sheet": (X, H, X + 0.2 * rng.normal(size=X.shape)),
+        "nearly_flat": (_hinge(0.3), single, _hinge(1e-5) + 1e-7 * rng.normal(size=(4, 3))),
+        "sharp_fold": (_hinge(0.1), single, _hinge(np.pi - 0.05) + 1e-3 * rng.normal(size=(4, 3))),
+        "sharp_fold_negative": (_hinge(-0.4), single, _hinge(-(np.pi - 0.05))),
+        "random_hinge": (_hinge(0.2), single, _hinge(0.2) + 0.3 * rng.normal(size=(4, 3))),
+    }
+
+
+@pytest.mark.parametrize("name", list(_cases()))
+def test_gradient_and_hessian_match_finite_differences(name: str) -> None:
+    X, H, x = _cases()[name]
+    E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+    g = E.gradient(x)
+    gf = _fd_gradient(E.value, x)
+    assert np.linalg.norm(g - gf) <= 1e-6 * np.linalg.norm(g)
+    Hx = _assemble(E, E.element_hessians(x, project=False), len(X))
+    Hf = _fd_hessian(E.gradient, x)
+    assert np.abs(Hx - Hx.T).max() <= 1e-12 * np.abs(Hx).max()
+    assert np.linalg.norm(Hx - Hf) <= 1e-5 * np.linalg.norm(Hx)
+
+
+def test_rest_state_and_rigid_motions() -> None:
+    rng = np.random.default_rng(9)
+    X, H, x = _cases()["random_sheet"]
+    E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+    assert E.value(X) == pytest.approx(0.0, abs=1e-20)
+    assert np.abs(E.gradient(X)).max() <= 1e-12
+    v = E.value(x)
+    g = E.gradient(x).reshape(-1, 3)
+    for _ in range(3):
+        R, t = _rotation(rng), rng.normal(size=3)
+        assert E.value(x @ R.T + t) == pytest.approx(v, rel=1e-11)
+        np.testing.assert_allclose(E.gradient(x @ R.T + t).reshape(-1, 3), g @ R.T, atol=1e-9 * np.abs(g).max())
+        assert E.value(X @ R.T + t) == pytest.approx(0.0, abs=1e-18)
+    # a rigid motion of the rest shape itself leaves the rest angles and weights unchanged
+    E2 = BendingEnergy(X @ R.T + t, H, 1.0e3, 0.3, 0.1)
+    np.testing.assert_allclose(E2.rest_angles, E.rest_angles, atol=1e-13)
+    np.testing.assert_allclose(E2.weights, E.weights, rtol=1e-12)
+
+
+def test_projected_blocks_are_psd_and_exact_where_psd() -> None:
+    seen_exact = seen_projected = 0
+    for name, (X, H, x) in _cases().items():
+        E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+        for y in (x, X):  # at rest the exact block 2c∇θ∇θᵀ is PSD (rank 1)
+            Hx = E.element_hessians(y, project=False)
+            Hp = E.element_hessians(y, project=True)
+            for a, b in zip(Hx, Hp, strict=True):
+                scale = max(np.abs(a).max(), 1e-300)
+                assert np.linalg.eigvalsh(b).min() >= -1e-12 * scale, name
+                if np.linalg.eigvalsh(a).min() >= -1e-12 * scale:
+                    np.testing.assert_allclose(b, a, atol=1e-12 * scale)
+                    seen_exact += 1
+                else:
+                    seen_projected += 1
+    assert seen_exact > 0 and seen_projected > 0
+
+
+def test_set_rest_shape_and_protocol() -> None:
+    rng = np.random.default_rng(1)
+    X, H, x = _cases()["random_sheet"]
+    E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+    assert isinstance(E, ElementTerm)
+    assert E.element_dofs().shape == (len(H), 12)
+    E.set_rest_shape(x)
+    assert E.value(x) == pytest.approx(0.0, abs=1e-20)
+    np.testing.assert_allclose(E.rest_angles, E.angles(x), atol=1e-15)
+    y = x + 0.05 * rng.normal(size=x.shape)
+    got = []
+    val, grad = E.value_gradient_hessian_groups(y, lambda first, b: got.append(b.copy()), group=3)
+    np.testing.assert_allclose(np.concatenate(got), E.element_hessians(y), rtol=1e-13, atol=1e-13)
+    assert val == pytest.approx(E.value(y), rel=1e-13)
+    np.testing.assert_allclose(grad, E.gradient(y), rtol=1e-13, atol=1e-15)
+    bad = X.copy()
+    bad[H[0, 1]] = bad[H[0, 0]]
+    with pytest.raises(ValueError, match="hinge 0"):
+        E.set_rest_shape(bad)
+    E2 = BendingEnergy.from_triangles(X, _sheet(2)[1], 1.0e3, 0.3, 0.1)
+    np.testing.assert_array_equal(E2.hinges, H)

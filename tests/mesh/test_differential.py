@@ -1,0 +1,139 @@
+"""Tests of idp.mesh.differential: area-weighted normals of a sphere point outward, lumped areas sum
+to the surface area, the cotangent Laplacian is symmetric negative semidefinite with zero row sums and
+annihilates linear functions at interior vertices of a flat mesh, and ``LaplacianSmoothing``'s assembled
+Hessian equals -γ L (⊗ I₃) with value / gradient consistent with it; ``NormalForce`` is linear."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from idp.energies.term import ElementTerm
+from idp.mesh.differential import (
+    LaplacianSmoothing,
+    NormalForce,
+    cotangent_laplacian,
+    vertex_areas,
+    vertex_normals,
+)
+from idp.mesh.generate import revolve_profile, tri_rectangle
+from idp.mesh.surface import boundary_vertices
+from idp.solver.assembly import FixedPatternAssembler, FreeDofMap
+
+
+def _sphere(radius: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    t = np.linspace(-0.5 * np.pi, 0.5 * np.pi, 13)
+    m = revolve_profile(radius * np.sin(t), radius * np.cos(t), 24)  # bottom to top: outward faces
+    return m.vertices, m.faces
+
+
+def _flat(res: int = 5, jitter: float = 0.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    m = tri_rectangle((0.0, 0.0), (2.0, 1.0), (res, res))
+    X = np.zeros((m.vertices.shape[0], 3))
+    X[:, :2] = m.vertices
+    inner = np.setdiff1d(np.arange(len(X)), boundary_vertices(_edges_boundary(m.elements)))
+    X[inner, :2] += jitter * np.random.default_rng(seed).uniform(-1, 1, size=(inner.size, 2))
+    return X, m.elements
+
+
+def _edges_boundary(T: np.ndarray) -> np.ndarray:
+    """Boundary edges (k,2) of a triangle mesh (edges with one face)."""
+    e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u[c == 1]
+
+
+def test_sphere_normals_point_outward_and_areas_sum_to_the_surface() -> None:
+    X, T = _sphere()
+    N = vertex_normals(X, T)
+    U = vertex_normals(X, T, unit=True)
+    radial = X / np.linalg.norm(X, axis=1, keepdims=True)
+    assert np.all(np.einsum("ij,ij->i", U, radial) > 0.99)
+    np.testing.assert_allclose(np.linalg.norm(U, axis=1), 1.0, rtol=1e-14)
+    A = vertex_areas(X, T)
+    face_area = 0.5 * np.linalg.norm(np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]), axis=1)
+    assert A.sum() == pytest.approx(face_area.sum(), rel=1e-13)
+    assert face_area.sum() == pytest.approx(4 * np.pi * 1.5**2, rel=2e-2)  # a fine polyhedral sphere
+    # raw normals are 3x lumped-area weighted: |N_i| ≈ 3 A_i on a smooth surface
+    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 3 * A, rtol=0.05)
+    # closed surface: Σ_t A_t n̂_t = 0
+    assert np.abs(N.sum(axis=0)).max() <= 1e-12
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.08])
+def test_cotangent_laplacian_properties_on_a_flat_mesh(jitter: float) -> None:
+    X, T = _flat(5, jitter)
+    L = cotangent_laplacian(X, T)
+    Ld = L.toarray()
+    np.testing.assert_allclose(Ld, Ld.T, atol=1e-14)
+    np.testing.assert_allclose(Ld.sum(axis=1), 0.0, atol=1e-13)
+    assert np.linalg.eigvalsh(Ld).max() <= 1e-12
+    inner = np.setdiff1d(np.arange(len(X)), boundary_vertices(_edges_boundary(T)))
+    for f in (X[:, 0], X[:, 1], 0.3 * X[:, 0] - 1.7 * X[:, 1] + 2.0):
+        assert np.abs((L @ f)[inner]).max() <= 1e-12
+    # -fᵀ L f is the Dirichlet energy ∫|∇f|², exact for the piecewise-linear f = x on the 2 x 1 rectangle
+    f = X[:, 0]
+    assert -(f @ (L @ f)) == pytest.approx(2.0 * 1.0, rel=1e-12)  # ∫|∇f|² over the 2 x 1 rectangle
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.12])
+def test_laplacian_smoothing_hessian_is_minus_gamma_L(jitter: float) -> None:
+    rng = np.random.default_rng(2)
+    X, T = _flat(4, jitter, seed=3)
+    X[:, 2] = 0.05 * np.sin(3 * X[:, 0])
+    gamma = 2.5
+    S = LaplacianSmoothing(X, T, gamma)
+    assert isinstance(S, ElementTerm)
+    L = cotangent_laplacian(X, T)
+    np.testing.assert_allclose(S.laplacian().toarray(), L.toarray(), atol=1e-14)
+    n = len(X)
+    x = X + 0.1 * rng.normal(size=X.shape)
+    blocks = S.element_hessians(x, project=False)
+    for b in blocks:
+        assert np.linalg.eigvalsh(b).min() >= -1e-13 * np.abs(b).max()
+    np.testing.assert_allclose(S.element_hessians(x), blocks, atol=1e-13)  # projection: rounding only
+    H = np.zeros((3 * n, 3 * n))
+    for dofs, b in zip(S.element_dofs(), blocks, strict=True):
+        H[np.ix_(dofs, dofs)] += b
+    expected = -gamma * np.kron(L.toarray(), np.eye(3))
+    np.testing.assert_allclose(H, expected, atol=1e-12 * np.abs(expected).max())
+    # the project's assembler gives the same
+    asm = FixedPatternAssembler([S.element_dofs()], FreeDofMap(np.ones(3 * n, dtype=bool)), dim=3)
+    Ha = asm.assemble([blocks], [1.0], np.zeros(3 * n)).toarray()
+    np.testing.assert_allclose(Ha, expected, atol=1e-12 * np.abs(expected).max())
+    # value and gradient of the quadratic
+    assert S.value(x) == pytest.approx(-0.5 * gamma * np.sum(x * (L @ x)), rel=1e-12)
+    np.testing.assert_allclose(S.gradient(x), (-gamma * (L @ x)).ravel(), atol=1e-12)
+    # translations cost nothing
+    assert S.value(X + np.array([1.0, -2.0, 3.0])) == pytest.approx(S.value(X), rel=1e-12)
+
+
+def test_obtuse_triangle_blocks_are_psd_and_clamping_is_optional() -> None:
+    X = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.2, 0.0], [1.0, -1.0, 0.0]])  # obtuse at vertex 2
+    T = np.array([[0, 1, 2], [1, 0, 3]])
+    S = LaplacianSmoothing(X, T, 1.0)
+    assert S.edge_weights.min() < -0.1  # a negative cot weight ...
+    for b in S.element_hessians(X, project=False):
+        assert np.linalg.eigvalsh(b).min() >= -1e-13 * np.abs(b).max()  # ... yet a PSD block (P1 stiffness)
+    np.testing.assert_allclose(S.laplacian().toarray(), cotangent_laplacian(X, T).toarray(), atol=1e-14)
+    C = LaplacianSmoothing(X, T, 1.0, clamp_negative=True)
+    assert np.all(C.edge_weights >= 0)
+    Lc = C.laplacian().toarray()
+    assert np.all(Lc - np.diag(np.diag(Lc)) >= 0)  # M-matrix off-diagonals
+    for b in C.element_hessians(X, project=False):
+        assert np.linalg.eigvalsh(b).min() >= -1e-13 * np.abs(b).max()
+
+
+def test_normal_force_is_linear_along_frozen_normals() -> None:
+    X, T = _sphere()
+    F = NormalForce(T, len(X), beta=0.7)
+    F.update(X)
+    np.testing.assert_allclose(F.normals, vertex_normals(X, T) / 3.0)
+    x = X * 1.1
+    assert F.value(x) == pytest.approx(-0.7 * np.sum(F.normals * x), rel=1e-13)
+    np.testing.assert_allclose(F.gradient(x), -0.7 * F.normals.ravel())
+    calls = []
+    _v, g = F.value_gradient_hessian_groups(x, lambda first, b: calls.append(first))
+    assert not calls and F.element_dofs().shape == (0, 3)
+    # a descent step moves the sphere outward (the flow inflates it)
+    assert np.all(np.einsum("ij,ij->i", -g.reshape(-1, 3), X) > 0)
