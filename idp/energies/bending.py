@@ -12,6 +12,7 @@ relative to its rest angle sees the energy jump, as in the original method.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from idp.energies import _bending_kernels as _k
 from idp.energies._stencil_term import StencilTerm, per_item, positions, vertex_dofs
@@ -57,7 +58,7 @@ class BendingEnergy(StencilTerm):
     def __init__(
         self,
         rest_vertices: np.ndarray,
-        hinges: np.ndarray,
+        hinges: npt.ArrayLike,
         youngs_modulus: float | np.ndarray,
         poisson_ratio: float | np.ndarray,
         thickness: float | np.ndarray,
@@ -79,7 +80,7 @@ class BendingEnergy(StencilTerm):
     def from_triangles(
         cls,
         rest_vertices: np.ndarray,
-        triangles: np.ndarray,
+        triangles: npt.ArrayLike,
         youngs_modulus: float,
         poisson_ratio: float,
         thickness: float,

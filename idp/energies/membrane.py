@@ -16,6 +16,7 @@ areas (vectorised numpy), so the animation repair can change the rest shape ever
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from idp.energies import _membrane_kernels as _k
 from idp.energies._stencil_term import StencilTerm, per_item, positions, vertex_dofs
@@ -64,7 +65,7 @@ class MembraneEnergy(StencilTerm):
     def __init__(
         self,
         rest_vertices: np.ndarray,
-        triangles: np.ndarray,
+        triangles: npt.ArrayLike,
         youngs_modulus: float | np.ndarray,
         poisson_ratio: float | np.ndarray,
         thickness: float | np.ndarray,

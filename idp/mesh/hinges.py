@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
+import numpy.typing as npt
 
 
-def triangle_hinges(triangles: np.ndarray, return_faces: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+@overload
+def triangle_hinges(triangles: npt.ArrayLike, return_faces: Literal[False] = False) -> np.ndarray: ...
+
+
+@overload
+def triangle_hinges(triangles: npt.ArrayLike, return_faces: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def triangle_hinges(triangles: npt.ArrayLike, return_faces: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """(h, 4) hinges [x0, x1, x2, x3] of the interior edges (edges with exactly two faces).
 
     x0–x1 is the shared edge, in the winding order of the first face (x0, x1, x2); x3 is the vertex of

@@ -38,9 +38,9 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
 def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
     g = np.zeros(x.size)
     for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        d = d.reshape(x.shape)
+        e = np.zeros(x.size)
+        e[i] = EPS
+        d = e.reshape(x.shape)
         g[i] = (f(x + d) - f(x - d)) / (2 * EPS)
     return g
 
@@ -48,9 +48,9 @@ def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
 def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
     H = np.zeros((x.size, x.size))
     for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        d = d.reshape(x.shape)
+        e = np.zeros(x.size)
+        e[i] = EPS
+        d = e.reshape(x.shape)
         H[:, i] = (grad(x + d) - grad(x - d)) / (2 * EPS)
     return H
 
@@ -82,7 +82,7 @@ def test_gradient_and_hessian_match_finite_differences(name: str) -> None:
     x = _configurations(X, rng)[name]
     g = E.gradient(x)
     gf = _fd_gradient(E.value, x)
-    assert np.linalg.norm(g - gf) <= 1e-6 * max(np.linalg.norm(g), 1e-8)
+    assert np.linalg.norm(g - gf) <= 1e-6 * max(float(np.linalg.norm(g)), 1e-8)
     H = _assemble(E, E.element_hessians(x, project=False), X.shape[0])
     Hf = _fd_hessian(E.gradient, x)
     assert np.abs(H - H.T).max() <= 1e-12 * np.abs(H).max()
