@@ -250,16 +250,27 @@ class ContactModel:
         """Largest α in [0, 1] such that the linear move x0 → x0 + α(x1 − x0) is collision-free (CCD).
 
         Tight Inclusion's interval splitting degenerates when a pair is already nearly touching (measured:
-        minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the (also conservative)
-        additive CCD is used for that query."""
+        minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the additive CCD is used for that
+        query, capped by a Lipschitz bound on the gaps (additive CCD alone is not provably conservative there)."""
         v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
         ccd = self._ccd
-        if self._ccd_name == "tight_inclusion" and current_min_distance < 1e-4 * self.dhat:
+        near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < 1e-4 * self.dhat
+        if near_contact:
             ccd = self._fallback_ccd
             self.ccd_fallbacks += 1
         if candidates is not None and not self.compiled:
-            return float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
-        return float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
+            alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
+        else:
+            alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
+        if near_contact:
+            # Additive CCD is not provably conservative: at gaps of ~1e-10 (squared distances below the rounding
+            # of the coordinates) it returned α = 1 for a move that crossed (Fig. 3 armadillo, step 104). Bound
+            # it by the distance's Lipschitz constant: no pair's distance falls by more than twice the largest
+            # vertex displacement, so α ≤ ½·d_min / (2·max|Δv|) keeps every gap above half its current value.
+            move = float(np.sqrt(((v1 - v0) ** 2).sum(axis=1).max(initial=0.0)))
+            if move > 0.0:
+                alpha = min(alpha, 0.25 * current_min_distance / move)
+        return alpha
 
     def has_intersections(self, x: np.ndarray) -> bool:
         return bool(ipctk.has_intersections(self.mesh, self.surface_positions(x), self.broad_phase()))
