@@ -31,10 +31,6 @@ class Motion:
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
         raise NotImplementedError
 
-    @property
-    def is_fixed(self) -> bool:
-        return False
-
     def check_count(self, k: int) -> None:
         """Raise ValueError when the motion carries per-vertex data for a different number of vertices."""
 
@@ -45,10 +41,6 @@ class Fixed(Motion):
 
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
         return X
-
-    @property
-    def is_fixed(self) -> bool:
-        return True
 
 
 @dataclass
