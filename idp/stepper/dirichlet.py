@@ -6,8 +6,11 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    their targets is found and applied (the rest of the mesh unchanged). If α = 1 the targets are met.
 2. While unmet, the penalty P(x) = κ_B/2 · Σ_k m_k ‖x_k − x̃_k‖² is part of the step energy. Whenever an iterate
    is near convergence (Newton decrement ≤ tol) and the targets are unmet, κ_B doubles (up to a cap). When a
-   doubling moved the worst bound vertex less than ``min_progress`` (1 %) closer, the targets are blocked
-   (the paper is silent here): κ_B stays, the step converges with the residual reported.
+   doubling moved the worst bound vertex less than ``min_progress`` (10 %) closer, the targets are blocked
+   (the paper is silent here): κ_B stays, the step converges with the residual reported. Against elastic
+   resistance alone a doubling roughly halves the residual; against contact the barrier stiffens so fast that
+   it barely moves, and further doublings only crush the gaps (measured on Fig. 3 with a 1 % threshold:
+   minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps).
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
    then continues to convergence.
@@ -46,7 +49,7 @@ class DirichletTargets:
         free_vertices: np.ndarray | None = None,
         kappa_initial: float = 1e4,
         max_doublings: int = 24,
-        min_progress: float = 0.01,
+        min_progress: float = 0.1,
         kinematic_progress: float | None = None,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
