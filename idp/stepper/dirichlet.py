@@ -10,7 +10,10 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    (the paper is silent here): κ_B stays, the step converges with the residual reported. Against elastic
    resistance alone a doubling roughly halves the residual; against contact the barrier stiffens so fast that
    it barely moves, and further doublings only crush the gaps (measured on Fig. 3 with a 1 % threshold:
-   minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps).
+   minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps). Blocked targets are also detected away
+   from convergence: when ``stall_iterations`` (30) Newton iterates in a row bring the worst bound vertex less
+   than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held where they are
+   and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
    then continues to convergence.
@@ -51,6 +54,7 @@ class DirichletTargets:
         max_doublings: int = 24,
         min_progress: float = 0.1,
         kinematic_progress: float | None = None,
+        stall_iterations: int = 30,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
         optimises (default: those with mass); ``tolerance``: distance (scene units) under which a bound vertex
@@ -65,6 +69,7 @@ class DirichletTargets:
         self.kappa_initial = float(kappa_initial)
         self.kappa_max = self.kappa_initial * 2.0**max_doublings
         self.min_progress = float(min_progress)
+        self.stall_iterations = int(stall_iterations)
         self.kinematic_progress = float(kinematic_progress) if kinematic_progress else 0.1 * self.tolerance
         self.kappa = self.kappa_initial
         self.vertices = np.zeros(0, dtype=np.int64)
@@ -80,9 +85,12 @@ class DirichletTargets:
         self._met = True
         self._blocked = False
         self._last_residual: float | None = None
+        self._best_residual: float | None = None
+        self._stalled = 0
         self.feasible_fraction = 1.0
         self.doublings = 0
         self.kinematic_moves = 0
+        self.frozen = False
 
     # -- set-up per step -----------------------------------------------------------------------
     def set_targets(
@@ -135,8 +143,9 @@ class DirichletTargets:
         self._penalty_on = bool(self._dof.any())
         return x
 
-    def _hold(self) -> None:
-        self._met = True
+    def _hold(self, met: bool = True) -> None:
+        """Hold the bound DOFs where they are and drop the penalty (on target, or frozen when stalled)."""
+        self._met = met
         self._penalty_on = False
         v = self.vertices[self._dof]
         self._held[(v[:, None] * self.dim + np.arange(self.dim)[None, :]).ravel()] = True
@@ -179,6 +188,20 @@ class DirichletTargets:
                 x[self.vertices] = self.targets
                 self._hold()
                 return x, True
+        if self._penalty_on and not near_converged:
+            # stagnation: the penalty has not brought the worst handle min_progress closer for stall_iterations
+            # Newton iterates (contact keeps cutting the steps); freeze the handles where they are
+            pen = float(dist[self._dof].max())
+            if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
+                self._best_residual, self._stalled = pen, 0
+            else:
+                self._stalled += 1
+                if self._stalled >= self.stall_iterations:
+                    self._hold(met=False)
+                    self._blocked = True
+                    self.frozen = True
+                    return x, True
+            return x, False
         if not near_converged or self._blocked:
             return x, False
         changed = False
@@ -230,6 +253,7 @@ class DirichletTargets:
             "residual_max_per_handle": per_group,
             "met": bool(self._met),
             "blocked": bool(self._blocked),
+            "frozen_after_stall": bool(self.frozen),
             "residual_max": mx,
             "residual_rms": rms,
             "residual_max_over_dhat": mx / dhat if dhat else None,
