@@ -5,9 +5,12 @@
 * ``vertex_areas``: lumped (barycentric) vertex areas Σ_{t∋i} A_t/3.
 * ``cotangent_laplacian``: L_ij = ½ (cot α_ij + cot β_ij) for an edge ij, L_ii = -Σ_j L_ij: negative
   semidefinite, L·1 = 0, and L f = 0 at interior vertices of a flat mesh for linear f.
+* ``area_laplacian``: the umbrella-type graph Laplacian with edge weights from triangle areas, w_ij =
+  Σ_{t∋ij} A_t/3 (non-negative, so negative semidefinite); the weighting of the reference normal flow.
 * ``LaplacianSmoothing``: E = -γ ½ xᵀ L x (each coordinate) as an ``ElementTerm`` over triangles (9x9
-  blocks, PSD per triangle without any clamping: see the class).
-* ``NormalForce``: the linear term E = -β Σ_i N_i·x_i with N frozen (``update`` once per step).
+  blocks, PSD per triangle without any clamping: see the class); ``weights`` picks cotangent or area.
+* ``NormalForce``: the linear term E = -β Σ_i N_i·x_i with N frozen (``update`` once per step);
+  ``weighting`` picks N_i = Σ_{t∋i} A_t n̂_t/3 ("area") or N_i = m_i n̂_i ("lumped_unit").
 """
 
 from __future__ import annotations
@@ -73,6 +76,18 @@ def cotangent_weights(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray
     return w
 
 
+def area_weights(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m,3) A_t/3 at every corner c of each triangle: the weight of edge (c+1, c+2) in that triangle, so an
+    interior edge gets (A_1+A_2)/3.  Non-negative, hence PSD smoothing blocks; the umbrella-type weighting
+    of the reference normal flow (taken from the initial shape and kept)."""
+    X, T = _mesh(vertices, triangles)
+    a = np.linalg.norm(face_area_normals(X, T), axis=1) / 3.0
+    return np.repeat(a[:, None], 3, axis=1)
+
+
+_EDGE_WEIGHTS = {"cotangent": cotangent_weights, "area": area_weights}
+
+
 def _laplacian_from_weights(T: np.ndarray, w: np.ndarray, n: int) -> sp.csr_matrix:
     """L with L_ij = Σ weights of edge ij, L_ii = -Σ_j L_ij (n x n CSR)."""
     i = np.concatenate([T[:, 1], T[:, 2], T[:, 0]])
@@ -90,6 +105,12 @@ def cotangent_laplacian(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_m
     return _laplacian_from_weights(T, cotangent_weights(X, T), X.shape[0])
 
 
+def area_laplacian(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_matrix:
+    """(n,n) area-weighted graph Laplacian, L_ij = Σ_{t∋ij} A_t/3 (negative semidefinite, rows sum to 0)."""
+    X, T = _mesh(vertices, triangles)
+    return _laplacian_from_weights(T, area_weights(X, T), X.shape[0])
+
+
 class LaplacianSmoothing(StencilTerm):
     """E(x) = γ/2 Σ_t Σ_c w_tc |x_{c+1} - x_{c+2}|² = -γ ½ xᵀ L_w x (per coordinate), as 9x9 blocks γ K_t ⊗ I₃.
 
@@ -100,12 +121,26 @@ class LaplacianSmoothing(StencilTerm):
     PSD blocks, and by default none is done (L_w = L exactly).  ``clamp_negative=True`` sets negative
     weights to 0 (L_w then has non-negative off-diagonals, an M-matrix, at the price of no longer being the
     cotangent Laplacian on obtuse meshes); blocks stay PSD either way.  ``project`` replaces K_t by its PSD
-    part (3x3 eigen-decomposition), which only removes rounding-level negative eigenvalues."""
+    part (3x3 eigen-decomposition), which only removes rounding-level negative eigenvalues.
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, gamma: float, clamp_negative: bool = False) -> None:
+    ``weights="area"`` uses w_tc = A_t/3 instead (``area_weights``): the umbrella-type graph Laplacian of
+    the reference normal flow, whose weights come from the initial triangle areas and are not updated.
+    They are non-negative, so ``clamp_negative`` changes nothing for them."""
+
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        triangles: np.ndarray,
+        gamma: float,
+        clamp_negative: bool = False,
+        weights: str = "cotangent",
+    ) -> None:
         X, T = _mesh(vertices, triangles)
         if not (np.isfinite(gamma) and gamma >= 0):
             raise ValueError(f"gamma must be finite and >= 0, got {gamma!r}")
+        if weights not in _EDGE_WEIGHTS:
+            raise ValueError(f"weights must be one of {sorted(_EDGE_WEIGHTS)}, got {weights!r}")
+        self.weights = weights
         self.triangles = np.ascontiguousarray(T)
         self.num_vertices = X.shape[0]
         self.gamma = float(gamma)
@@ -114,8 +149,8 @@ class LaplacianSmoothing(StencilTerm):
         self.set_weights(X)
 
     def set_weights(self, vertices: np.ndarray) -> None:
-        """Recompute the cotangent edge weights (clamped at 0 if ``clamp_negative``) from ``vertices`` (n,3)."""
-        w = cotangent_weights(positions(vertices, self.num_vertices), self.triangles)
+        """Recompute the edge weights (``weights`` kind, clamped at 0 if ``clamp_negative``) from ``vertices`` (n,3)."""
+        w = _EDGE_WEIGHTS[self.weights](positions(vertices, self.num_vertices), self.triangles)
         if self.clamp_negative:
             w = np.maximum(w, 0.0)
         self.edge_weights = w
@@ -162,23 +197,37 @@ class LaplacianSmoothing(StencilTerm):
 class NormalForce:
     """Linear term E(x) = -β Σ_i N_i·x_i (gradient -β N, zero Hessian) pushing vertices along frozen normals N.
 
-    ``update(x)`` sets N_i = Σ_{t∋i} (A_t/3) n̂_t, the area-weighted normal with the lumped (area/3)
-    weighting, from the current shape; call it once per step (the normal flow recomputes the force from
-    the current shape each step).  ``set_normals`` sets N directly.  No stencils: ``element_dofs`` is
-    empty and no Hessian block is ever handed to the sink."""
+    ``update(x)`` sets N from the current shape; call it once per step (the normal flow recomputes the
+    force from the current shape each step).  ``weighting="area"`` (default): N_i = Σ_{t∋i} (A_t/3) n̂_t,
+    the area-weighted normal with the lumped (area/3) weighting.  ``weighting="lumped_unit"``: N_i = m_i n̂_i
+    with m_i = Σ_{t∋i} A_t/3 the lumped area and n̂_i the unit area-weighted vertex normal (the reference
+    flow's force: magnitude x lumped mass x unit normal), so |N_i| = m_i wherever n̂_i exists.
+    ``set_normals`` sets N directly.  No stencils: ``element_dofs`` is empty and no Hessian block is ever
+    handed to the sink."""
 
-    def __init__(self, triangles: np.ndarray, num_vertices: int, beta: float) -> None:
+    WEIGHTINGS = ("area", "lumped_unit")
+
+    def __init__(self, triangles: np.ndarray, num_vertices: int, beta: float, weighting: str = "area") -> None:
         T = np.asarray(triangles, dtype=np.int64)
         if T.ndim != 2 or T.shape[1] != 3:
             raise ValueError(f"triangles must be (m, 3), got shape {T.shape}")
+        if weighting not in self.WEIGHTINGS:
+            raise ValueError(f"weighting must be one of {list(self.WEIGHTINGS)}, got {weighting!r}")
+        self.weighting = weighting
         self.triangles = np.ascontiguousarray(T)
         self.num_vertices = int(num_vertices)
         self.beta = float(beta)
         self.normals = np.zeros((self.num_vertices, 3))
 
     def update(self, x: np.ndarray) -> None:
-        """N = vertex_normals(x)/3 (lumped area/3 weighting of each face's A_t n̂_t)."""
-        self.normals = vertex_normals(positions(x, self.num_vertices), self.triangles) / 3.0
+        """N from the shape ``x``: vertex_normals(x)/3 ("area") or vertex_areas(x)·unit vertex normal
+        ("lumped_unit")."""
+        X = positions(x, self.num_vertices)
+        if self.weighting == "area":
+            self.normals = vertex_normals(X, self.triangles) / 3.0
+        else:
+            unit = vertex_normals(X, self.triangles, unit=True)
+            self.normals = vertex_areas(X, self.triangles)[:, None] * unit
 
     def set_normals(self, normals: np.ndarray) -> None:
         """Use the given (n,3) N."""
@@ -209,6 +258,8 @@ class NormalForce:
 __all__ = [
     "LaplacianSmoothing",
     "NormalForce",
+    "area_laplacian",
+    "area_weights",
     "cotangent_laplacian",
     "cotangent_weights",
     "face_area_normals",

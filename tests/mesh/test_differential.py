@@ -1,7 +1,9 @@
 """Tests of idp.mesh.differential: area-weighted normals of a sphere point outward, lumped areas sum
 to the surface area, the cotangent Laplacian is symmetric negative semidefinite with zero row sums and
-annihilates linear functions at interior vertices of a flat mesh, and ``LaplacianSmoothing``'s assembled
-Hessian equals -γ L (⊗ I₃) with value / gradient consistent with it; ``NormalForce`` is linear."""
+annihilates linear functions at interior vertices of a flat mesh, the area ("umbrella") Laplacian has
+non-negative weights (A_1+A_2)/3, and ``LaplacianSmoothing``'s assembled Hessian equals -γ L (⊗ I₃) for
+either weighting, with value / gradient / Hessian matching finite differences; ``NormalForce`` is linear
+and both of its weightings point outward on a sphere."""
 
 from __future__ import annotations
 
@@ -12,6 +14,8 @@ from idp.energies.term import ElementTerm
 from idp.mesh.differential import (
     LaplacianSmoothing,
     NormalForce,
+    area_laplacian,
+    area_weights,
     cotangent_laplacian,
     vertex_areas,
     vertex_normals,
@@ -76,15 +80,45 @@ def test_cotangent_laplacian_properties_on_a_flat_mesh(jitter: float) -> None:
     assert -(f @ (L @ f)) == pytest.approx(2.0 * 1.0, rel=1e-12)  # ∫|∇f|² over the 2 x 1 rectangle
 
 
+def _face_areas(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    return 0.5 * np.linalg.norm(np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]), axis=1)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.08])
+def test_area_laplacian_properties(jitter: float) -> None:
+    X, T = _flat(4, jitter)
+    X[:, 2] = 0.1 * np.cos(2 * X[:, 1])
+    w = area_weights(X, T)
+    A = _face_areas(X, T)
+    np.testing.assert_allclose(w, np.repeat(A[:, None] / 3.0, 3, axis=1), rtol=1e-14)
+    Ld = area_laplacian(X, T).toarray()
+    np.testing.assert_allclose(Ld, Ld.T, atol=1e-14)
+    np.testing.assert_allclose(Ld.sum(axis=1), 0.0, atol=1e-13)
+    assert np.all(Ld - np.diag(np.diag(Ld)) >= 0)  # non-negative edge weights
+    assert np.linalg.eigvalsh(Ld).max() <= 1e-12
+    # an interior edge gets (A_1 + A_2)/3, a boundary edge A_t/3
+    e = np.sort(np.concatenate([T[:, [1, 2]], T[:, [2, 0]], T[:, [0, 1]]]), axis=1)
+    face = np.tile(np.arange(len(T)), 3)
+    u, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    expected = np.bincount(inv.ravel(), weights=A[face] / 3.0)
+    np.testing.assert_allclose(Ld[u[:, 0], u[:, 1]], expected, rtol=1e-13)
+    assert np.any(cnt == 1) and np.any(cnt == 2)
+
+
+def _laplacian(weights: str, X: np.ndarray, T: np.ndarray):
+    return cotangent_laplacian(X, T) if weights == "cotangent" else area_laplacian(X, T)
+
+
+@pytest.mark.parametrize("weights", ["cotangent", "area"])
 @pytest.mark.parametrize("jitter", [0.0, 0.12])
-def test_laplacian_smoothing_hessian_is_minus_gamma_L(jitter: float) -> None:
+def test_laplacian_smoothing_hessian_is_minus_gamma_L(jitter: float, weights: str) -> None:
     rng = np.random.default_rng(2)
     X, T = _flat(4, jitter, seed=3)
     X[:, 2] = 0.05 * np.sin(3 * X[:, 0])
     gamma = 2.5
-    S = LaplacianSmoothing(X, T, gamma)
+    S = LaplacianSmoothing(X, T, gamma, weights=weights)
     assert isinstance(S, ElementTerm)
-    L = cotangent_laplacian(X, T)
+    L = _laplacian(weights, X, T)
     np.testing.assert_allclose(S.laplacian().toarray(), L.toarray(), atol=1e-14)
     n = len(X)
     x = X + 0.1 * rng.normal(size=X.shape)
@@ -106,6 +140,63 @@ def test_laplacian_smoothing_hessian_is_minus_gamma_L(jitter: float) -> None:
     np.testing.assert_allclose(S.gradient(x), (-gamma * (L @ x)).ravel(), atol=1e-12)
     # translations cost nothing
     assert S.value(X + np.array([1.0, -2.0, 3.0])) == pytest.approx(S.value(X), rel=1e-12)
+
+
+EPS = 1e-6
+
+
+def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
+    g = np.zeros(x.size)
+    for i in range(x.size):
+        d = np.zeros(x.size)
+        d[i] = EPS
+        d = d.reshape(x.shape)
+        g[i] = (f(x + d) - f(x - d)) / (2 * EPS)
+    return g
+
+
+def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
+    H = np.zeros((x.size, x.size))
+    for i in range(x.size):
+        d = np.zeros(x.size)
+        d[i] = EPS
+        d = d.reshape(x.shape)
+        H[:, i] = (grad(x + d) - grad(x - d)) / (2 * EPS)
+    return H
+
+
+@pytest.mark.parametrize("weights", ["cotangent", "area"])
+def test_laplacian_smoothing_matches_finite_differences(weights: str) -> None:
+    rng = np.random.default_rng(5)
+    X, T = _flat(2, 0.1, seed=1)
+    X[:, 2] = 0.2 * np.sin(2 * X[:, 0])
+    S = LaplacianSmoothing(X, T, 1.7, weights=weights)
+    x = X + 0.2 * rng.normal(size=X.shape)
+    g = S.gradient(x)
+    gf = _fd_gradient(S.value, x)
+    assert np.linalg.norm(g - gf) <= 1e-7 * np.linalg.norm(g)
+    H = np.zeros((x.size, x.size))
+    for dofs, b in zip(S.element_dofs(), S.element_hessians(x, project=False), strict=True):
+        H[np.ix_(dofs, dofs)] += b
+    Hf = _fd_hessian(S.gradient, x)
+    assert np.linalg.norm(H - Hf) <= 1e-7 * np.linalg.norm(H)
+    # the weights come from the construction shape and are not updated by moving x
+    np.testing.assert_allclose(S.element_hessians(2.0 * x, project=False), S.element_hessians(x, project=False))
+
+
+def test_area_weights_are_the_initial_areas_and_give_psd_blocks() -> None:
+    X = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.2, 0.0], [1.0, -1.0, 0.0]])  # obtuse at vertex 2
+    T = np.array([[0, 1, 2], [1, 0, 3]])
+    S = LaplacianSmoothing(X, T, 1.0, weights="area")
+    np.testing.assert_allclose(S.edge_weights, [[0.2 / 3] * 3, [1.0 / 3] * 3], rtol=1e-14)
+    for b in S.element_hessians(X, project=False):
+        assert np.linalg.eigvalsh(b).min() >= -1e-13 * np.abs(b).max()
+    np.testing.assert_allclose(S.laplacian().toarray(), area_laplacian(X, T).toarray(), atol=1e-14)
+    # set_weights recomputes areas from the given shape (here: everything scaled by 2 → areas x 4)
+    S.set_weights(2.0 * X)
+    np.testing.assert_allclose(S.edge_weights, [[0.8 / 3] * 3, [4.0 / 3] * 3], rtol=1e-14)
+    with pytest.raises(ValueError, match="weights must be one of"):
+        LaplacianSmoothing(X, T, 1.0, weights="uniform")
 
 
 def test_obtuse_triangle_blocks_are_psd_and_clamping_is_optional() -> None:
@@ -137,3 +228,24 @@ def test_normal_force_is_linear_along_frozen_normals() -> None:
     assert not calls and F.element_dofs().shape == (0, 3)
     # a descent step moves the sphere outward (the flow inflates it)
     assert np.all(np.einsum("ij,ij->i", -g.reshape(-1, 3), X) > 0)
+
+
+def test_lumped_unit_normal_force_points_outward_with_lumped_area_magnitude() -> None:
+    X, T = _sphere()
+    X = X + np.array([0.3, -2.0, 1.0])  # off the origin: outward is relative to the centroid
+    c = X.mean(axis=0)
+    m = vertex_areas(X, T)
+    for weighting in ("area", "lumped_unit"):
+        F = NormalForce(T, len(X), beta=1.0, weighting=weighting)
+        F.update(X)
+        assert np.all(np.einsum("ij,ij->i", F.normals, X - c) > 0)
+    np.testing.assert_allclose(np.linalg.norm(F.normals, axis=1), m, rtol=1e-13)
+    np.testing.assert_allclose(F.normals, m[:, None] * vertex_normals(X, T, unit=True), rtol=1e-13)
+    # the default is unchanged: Σ_t A_t n̂_t / 3, no longer than the lumped area
+    D = NormalForce(T, len(X), beta=1.0)
+    D.update(X.ravel())
+    assert D.weighting == "area"
+    np.testing.assert_allclose(D.normals, vertex_normals(X, T) / 3.0)
+    assert np.all(np.linalg.norm(D.normals, axis=1) <= m * (1 + 1e-12))
+    with pytest.raises(ValueError, match="weighting must be one of"):
+        NormalForce(T, len(X), beta=1.0, weighting="unit")
