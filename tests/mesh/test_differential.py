@@ -148,9 +148,9 @@ EPS = 1e-6
 def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
     g = np.zeros(x.size)
     for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        d = d.reshape(x.shape)
+        step = np.zeros(x.size)
+        step[i] = EPS
+        d = step.reshape(x.shape)
         g[i] = (f(x + d) - f(x - d)) / (2 * EPS)
     return g
 
@@ -158,9 +158,9 @@ def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
 def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
     H = np.zeros((x.size, x.size))
     for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        d = d.reshape(x.shape)
+        step = np.zeros(x.size)
+        step[i] = EPS
+        d = step.reshape(x.shape)
         H[:, i] = (grad(x + d) - grad(x - d)) / (2 * EPS)
     return H
 
