@@ -5,11 +5,34 @@ the target edge length), layout by HarfBuzz (``uharfbuzz``: advances and the fon
 with shapely under the font's fill rule (nonzero) and unioned across contours and glyphs, then a quality
 triangulation whose boundary is exactly the (resampled) outline.
 
-MESHER_NOTES
+Scale and placement: ``height`` is the cap height (OS/2 ``sCapHeight``, else the top of "H"), the default target
+edge length is ``height / 40``; lines are left-aligned, ``line_spacing`` × the font's line height apart, and the
+result is centred on the origin by its bounding box. Default font: DejaVu Sans from matplotlib's wheel.
+
+Mesher choice (measured on this machine, default font, height 1, edge e = 1/40; "min/p1/median angle" is the
+smallest angle per triangle, "L" edge length / e as min / 5 % / median / 95 % / max):
+
+* pythoncdt (CDT library, MPL-2.0), constrained Delaunay + refinement (smallest angle 30°, area ≤ 1.5 × the
+  equilateral triangle of side e) — CHOSEN. "AB": 2652 triangles, angles min 6.8° / p1 31.4° / median 48.2°,
+  L 0.16 / 0.74 / 0.99 / 1.34 / 1.64, 0.45 s; "ox": 1761 triangles, 27.9° / 32.1° / 47.9°,
+  L 0.69 / 0.74 / 0.96 / 1.33 / 1.61; "Seriously": 7225 triangles, 14.7° / 30.9° / 47.6°, L 0.16 / … / 1.70,
+  0.3 s. The minimum angles below 30° sit at sharp outline corners and short outline edges, which are input.
+  All outline vertices are kept exactly; 0–8 midpoints of encroached outline segments are added (they lie on
+  the outline).
+* mapbox_earcut (ISC) or shapely's GEOS CDT, then gpytoolbox.remesh_botsch (MIT) with the boundary fixed:
+  remeshing is blocked next to fixed vertices, so quality stays that of the input (median smallest angle
+  ~21°, p1 ~11°, edges up to 4 e on "AB"/"Seriously"); earcut alone gives zero-area triangles on collinear
+  resampled outline points.
+* wildmeshing (MPL-2.0, TriWild) ``triangulate_data``: does not keep the outline vertices (95 of 355 kept on
+  "ox") and ignored the target length at stage 1 (edges 0.9–13 e). Rejected.
+
+The mesh boundary is exactly the cleaned, resampled outline (counter-clockwise outer loops, clockwise holes),
+so it can be fixed when the interior is inflated.
 """
 
 from __future__ import annotations
 
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,8 +97,6 @@ def _load_font(font: str | Path | None) -> _Font:
     except OSError as e:
         raise FontError(f"cannot read font file {path}: {e.strerror or e}") from e
     try:
-        import io
-
         tt = TTFont(io.BytesIO(data), fontNumber=0, lazy=False)
         units_per_em = int(tt["head"].unitsPerEm)
         cmap = tt.getBestCmap()
@@ -86,7 +107,9 @@ def _load_font(font: str | Path | None) -> _Font:
     if cmap is None:
         raise FontError(f"font file {path} has no usable Unicode character map (cmap)")
     if not any(t in tt for t in ("glyf", "CFF ", "CFF2")):
-        raise FontError(f"font file {path} has no outline table (glyf, CFF or CFF2); bitmap-only fonts are not supported")
+        raise FontError(
+            f"font file {path} has no outline table (glyf, CFF or CFF2); bitmap-only fonts are not supported"
+        )
     if units_per_em <= 0:
         raise FontError(f"font file {path}: unitsPerEm is {units_per_em}")
     cap = 0.0
@@ -255,7 +278,6 @@ def _text_region(text: str, font: _Font, height: float, tol: float) -> BaseGeome
     from shapely import affinity
 
     lines = _check_text(text)
-    _check_coverage(lines, font)
     scale = height / font.cap_height
     tol_units = tol / scale
     cache: dict[str, BaseGeometry] = {}
