@@ -239,3 +239,12 @@ def test_unreadable_font_names_file_and_reason(tmp_path):
     assert "cannot read font file" in str(info.value)
     with pytest.raises(FontError, match=r"missing\.ttf"):
         text_to_mesh("A", tmp_path / "missing.ttf")
+
+
+def test_glyphs_that_touch_become_one_region():
+    # DejaVu's underscores span their full advance: consecutive ones abut and must merge into one piece
+    m = text_to_mesh("___", height=H, edge_length=EDGE)
+    loops = boundary_loops(m.faces)
+    assert len(loops) == 1 and _loop_area(m.vertices, loops[0]) > 0
+    single = text_to_mesh("_", height=H, edge_length=EDGE)
+    assert _width(m) > 2.5 * _width(single)
