@@ -25,3 +25,7 @@ class CertificateError(IdpError):
 
 class SolverError(IdpError):
     """The nonlinear or linear solver could not continue (e.g. non-finite values)."""
+
+
+class FontError(IdpError):
+    """A font file or a text to set in it is unusable (unreadable font, missing glyphs, empty text)."""
