@@ -42,11 +42,12 @@ def simulate(
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
+    # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
+    built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
     out.mkdir(parents=True, exist_ok=True)
     resolved = resolved_scene_dict(scene)
     (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
     (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
-    built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
     if targets is not None:
         from idp.stepper.handles import HandleSet
 

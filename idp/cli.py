@@ -1,4 +1,4 @@
-"""Command line: ``idp run``, ``idp check``, ``idp demo``, ``idp bench``."""
+"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp check``, ``idp demo``, ``idp bench``."""
 
 from __future__ import annotations
 
@@ -45,6 +45,28 @@ def _cmd_run(args) -> int:
     return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
 
 
+def _cmd_flow(args) -> int:
+    _set_threads(args.threads)
+    from idp.applications.normal_flow import flow_scene, run_flow
+
+    out = Path(args.output)
+    scene = flow_scene(
+        args.mesh,
+        beta=args.beta,
+        gamma=args.smoothing,
+        steps=args.steps,
+        dhat=args.dhat,
+        laplacian=args.laplacian,
+        recompute=args.recompute,
+        fix_boundary=not args.free_boundary,
+        preserve_input_intersections=args.preserve_intersections,
+        output_dir=out,
+    )
+    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
+    _print_summary(result, out)
+    return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
+
+
 def _print_summary(result, out: Path) -> None:
     s = result.summary
     fill = s.get("fill_fraction")
@@ -62,6 +84,12 @@ def _print_summary(result, out: Path) -> None:
             f"fill fraction:      {100 * fill:.2f} % of the cage volume"
             f" (start {100 * s['initial_fill_fraction']:.2f} %)",
         )
+    flow = s.get("flow")
+    if flow:
+        what = "enclosed volume" if flow.get("volume") is not None else "area"
+        ratio = flow["volume_ratio"] if flow.get("volume") is not None else flow["area_ratio"]
+        value = flow["volume"] if flow.get("volume") is not None else flow["area"]
+        lines.insert(0, f"{what + ':':<20}{value:.5g} (x{ratio:.3f} of the input)")
     if s.get("dhat") is not None:
         lines.append(f"contact distance:   d̂ = {s['dhat']:.4g} (absolute)")
     if s.get("steps_with_unmet_targets"):
@@ -125,6 +153,26 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--check-iterates", action="store_true", help="certify every Newton iterate, not only every frame")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
+
+    f = sub.add_parser("flow", help="globally injective normal flow of a triangle surface (paper §7.2)")
+    f.add_argument("mesh", help="triangle surface (OBJ, PLY, STL, ...; or data:flow/cat.obj)")
+    f.add_argument("--beta", type=float, default=5e-3, help="flow speed per step: > 0 outward, < 0 inward")
+    f.add_argument("--smoothing", type=float, default=0.5, help="smoothing intensity gamma (>= 0)")
+    f.add_argument("--steps", type=int, default=10)
+    f.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
+    f.add_argument("--laplacian", choices=["area", "cotangent"], default="area")
+    f.add_argument("--recompute", choices=["auto", "always", "never"], default="auto", help="rebuild M and L per step")
+    f.add_argument("--free-boundary", action="store_true", help="let the boundary of an open surface move")
+    f.add_argument(
+        "--preserve-intersections",
+        action="store_true",
+        help="run on a surface that already crosses itself, keeping (never adding) its crossings",
+    )
+    f.add_argument("-o", "--output", default="out/flow")
+    f.add_argument("--threads", type=int)
+    f.add_argument("--resume", action="store_true")
+    f.add_argument("-q", "--quiet", action="store_true")
+    f.set_defaults(func=_cmd_flow)
 
     c = sub.add_parser("check", help="report counts, closedness, inverted/degenerate elements, self-intersections")
     c.add_argument("meshes", nargs="+")

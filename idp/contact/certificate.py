@@ -29,6 +29,7 @@ class Certificate:
     intersecting_pairs: int = 0  # counted (not a failure) when the scene runs without the barrier
     guards_intersection: bool = True  # False: contact off, intersections are reported, not failed
     guards_inversion: bool = True  # False: a non-barrier energy, inverted elements are reported, not failed
+    degenerate_shell_triangles: int = 0  # shells have no inversion guarantee (paper §4.4): reported, not failed
 
     @property
     def ok(self) -> bool:
@@ -44,6 +45,8 @@ class Certificate:
             )
         if not self.inversion_free:
             parts.append(f"{self.num_inverted} inverted element(s), min volume {self.min_element_volume:.3e}")
+        if self.degenerate_shell_triangles:
+            parts.append(f"{self.degenerate_shell_triangles} degenerate shell triangle(s) (reported only)")
         return "; ".join(parts) or f"ok (min distance {self.min_distance:.3e})"
 
     def to_dict(self) -> dict:
@@ -65,10 +68,13 @@ class Certifier:
         require_inversion_free: bool = True,
         require_intersection_free: bool = True,
         preserved_pairs: set | None = None,
+        shell_faces: np.ndarray | None = None,
     ):
         """``require_intersection_free=False`` (a scene without the barrier, locally injective only): frames are
         checked and their intersecting (edge, triangle) pairs counted, but intersections do not fail them;
-        ``require_inversion_free=False`` (non-barrier energies): inverted elements are counted, not failed."""
+        ``require_inversion_free=False`` (non-barrier energies): inverted elements are counted, not failed;
+        ``shell_faces``: triangles of 3D shells, whose degenerate (near zero-area) triangles are counted."""
+        self.shell_faces = None if shell_faces is None or not len(shell_faces) else np.asarray(shell_faces, np.int64)
         self.dim = positions.shape[1]
         self.element_sets = element_sets
         self.require_inversion_free = require_inversion_free
@@ -120,6 +126,11 @@ class Certifier:
                 c.build(self.mesh, vs, self.distance_query, 0.0, ipctk.LBVH())
                 if len(c):
                     min_d = math.sqrt(max(c.compute_minimum_distance(self.mesh, vs), 0.0))
+        n_degenerate = 0
+        if self.shell_faces is not None:
+            from idp.mesh.surface_checks import degenerate_triangles
+
+            n_degenerate = int(degenerate_triangles(x, self.shell_faces).size)
         return Certificate(
             intersection_free,
             inversion_free,
@@ -131,4 +142,5 @@ class Certifier:
             n_pairs,
             self.require_intersection_free,
             self.require_inversion_free,
+            n_degenerate,
         )

@@ -167,6 +167,70 @@ def box_surface(
     return SurfaceMesh(vol.vertices[used], remap[faces], source="box_surface")
 
 
+def _icosahedron() -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosahedron: 12 vertices, 20 outward faces."""
+    t = (1.0 + 5.0**0.5) / 2.0
+    v = np.array(
+        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
+        dtype=float,
+    )  # fmt: skip
+    f = np.array(
+        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+         [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
+        dtype=np.int64,
+    )  # fmt: skip
+    return v / np.linalg.norm(v, axis=1, keepdims=True), f
+
+
+def _subdivide_on_sphere(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One 1→4 split of every face, new (edge-midpoint) vertices pushed onto the unit sphere."""
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, inv = np.unique(e, axis=0, return_inverse=True)
+    mid = v[uniq].mean(axis=1)
+    mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+    m = inv.reshape(3, -1) + v.shape[0]  # midpoint ids of edges (01), (12), (20) per face
+    a, b, c = f[:, 0], f[:, 1], f[:, 2]
+    ab, bc, ca = m
+    faces = np.concatenate([np.stack(t, axis=1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return np.vstack([v, mid]), faces
+
+
+def ellipsoid_surface(
+    radii: Sequence[float] = (0.5, 0.5, 0.5),
+    center: Sequence[float] = (0.0, 0.0, 0.0),
+    subdivisions: int = 4,
+    noise: float = 0.0,
+    smoothing: int = 0,
+    seed: int = 0,
+) -> SurfaceMesh:
+    """Closed outward ellipsoid surface from a subdivided icosahedron (20·4^s faces, nearly uniform).
+
+    ``noise`` > 0 moves every vertex radially by a uniform random fraction in [−noise, noise] of its radius
+    (``numpy.random.default_rng(seed)``: the same seed gives the same surface), averaged over ``smoothing``
+    rounds of neighbours first (lower-frequency bumps); with a positive normal flow such a surface creases into
+    brain-like folds (paper Fig. 12c)."""
+    if not (0.0 <= noise < 0.5):
+        raise ValueError(f"noise must be in [0, 0.5) (a fraction of the radius), got {noise}")
+    if subdivisions < 0 or subdivisions > 7:
+        raise ValueError(f"subdivisions must be in [0, 7], got {subdivisions}")
+    v, f = _icosahedron()
+    for _ in range(int(subdivisions)):
+        v, f = _subdivide_on_sphere(v, f)
+    if noise > 0:
+        r = np.random.default_rng(seed).uniform(-noise, noise, v.shape[0])
+        if smoothing:
+            e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+            deg = np.bincount(e[:, 0], minlength=v.shape[0]).astype(float)
+            for _ in range(int(smoothing)):
+                r = 0.5 * r + 0.5 * np.bincount(e[:, 0], weights=r[e[:, 1]], minlength=v.shape[0]) / deg
+            r *= noise / max(float(np.abs(r).max()), 1e-300)
+        v = v * (1.0 + r)[:, None]
+    out = v * _vec(radii, 3, "radii")[None, :] + _vec(center, 3, "center")[None, :]
+    return SurfaceMesh(out, f, source=f"ellipsoid_surface(noise={noise}, seed={seed})")
+
+
 def revolve_profile(ys: npt.ArrayLike, rs: npt.ArrayLike, segments: int) -> SurfaceMesh:
     """Surface of revolution about the y axis of the profile (r(t), y(t)).
 

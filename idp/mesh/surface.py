@@ -87,6 +87,15 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
     return uniq
 
 
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Sorted edges ``(b, 2)`` of a triangle surface used by exactly one face (the open boundary)."""
+    f = _as_index_array(faces, "faces", (3,))
+    if f.shape[0] == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    uniq, _, counts = _unique_rows(np.sort(_directed_edges(f), axis=1))
+    return uniq[counts == 1]
+
+
 @dataclass
 class SurfaceTopology:
     """Combinatorial summary of a triangle surface or a 2D polyline.

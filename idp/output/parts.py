@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-PART_KINDS = ("deformable", "obstacle")
+PART_KINDS = ("deformable", "shell", "obstacle")
 
 
 @dataclass
@@ -14,9 +14,9 @@ class Part:
     """One object of a scene, in the global vertex numbering of the simulation."""
 
     name: str
-    kind: str  # "deformable" | "obstacle"
+    kind: str  # "deformable" | "shell" (a deforming triangle surface in 3D) | "obstacle"
     vertex_ids: np.ndarray  # (k,) int64 global ids of this part's vertices (contiguous range in practice)
-    elements: np.ndarray | None  # (m, d+1) int64 GLOBAL ids: tets (3D) / triangles (2D); None for obstacles
+    elements: np.ndarray | None  # (m, d+1) int64 GLOBAL ids: tets (3D) / triangles (2D); None for shells, obstacles
     surface: np.ndarray  # (f, d) int64 GLOBAL ids: outward boundary triangles (3D) or segments (2D)
 
     def __post_init__(self) -> None:

@@ -112,7 +112,10 @@ def _panel_3d(ax, parts: list[Part], x: np.ndarray, cam, cages: list[bool]) -> n
             cage_edges.append(proj[_feature_edges(p.surface, nrm, back)])
             continue
         front = facing > 0
-        base = np.asarray(to_rgb(PALETTE[i % len(PALETTE)])) if p.kind == "deformable" else _OBSTACLE_RGB
+        if p.kind == "shell":  # open surfaces show both sides: back faces drawn with their normal flipped
+            front = np.ones_like(front)
+            nrm = np.where((facing < 0)[:, None], -nrm, nrm)
+        base = np.asarray(to_rgb(PALETTE[i % len(PALETTE)])) if p.kind != "obstacle" else _OBSTACLE_RGB
         lam = 0.38 + 0.62 * np.clip(nrm[front] @ light, 0.0, None) + 0.12 * np.clip(-(nrm[front] @ light), 0.0, None)
         rgba = np.ones((int(front.sum()), 4))
         rgba[:, :3] = np.clip(base[None, :] * lam[:, None], 0, 1)
@@ -195,7 +198,7 @@ def render_frames_png(
     cam = _camera(view) if dim == 3 else None
     cages = [False] * len(parts)
     if dim == 3:
-        deform = [xs[0][np.unique(p.surface)] for p in parts if p.kind == "deformable" and p.surface.size]
+        deform = [xs[0][np.unique(p.surface)] for p in parts if p.kind in ("deformable", "shell") and p.surface.size]
         inner = np.concatenate(deform) if deform else np.zeros((0, 3))
         cages = [p.kind == "obstacle" and _encloses(xs[0][np.unique(p.surface)], inner) for p in parts]
     axes, pts = [], []

@@ -17,7 +17,7 @@ from idp.errors import IntersectingInputError, MeshError, SceneError
 from idp.mesh import generate as gen
 from idp.mesh.io import read_mesh
 from idp.mesh.placement import place, select_in_box
-from idp.mesh.surface import boundary_faces, enclosed_volume, surface_topology
+from idp.mesh.surface import boundary_edges, boundary_faces, enclosed_volume, surface_topology
 from idp.mesh.types import SurfaceMesh, VolumeMesh
 from idp.output.parts import Part
 from idp.scene.build_handles import motion_from_spec, selection_from_spec
@@ -25,7 +25,7 @@ from idp.solver.newton import NewtonSettings
 from idp.stepper.dirichlet import DirichletTargets
 from idp.stepper.handles import Handle, HandleSet, check_static_overlaps
 from idp.stepper.run import RunSettings
-from idp.stepper.system import Body, RestShapeSchedule, System
+from idp.stepper.system import Body, RestShapeSchedule, System, WeightedTerm
 
 log = logging.getLogger("idp")
 
@@ -34,6 +34,7 @@ GENERATORS: dict[str, Callable[..., VolumeMesh | SurfaceMesh]] = {
     "ellipsoid": gen.tet_ellipsoid,
     "tet_box": gen.tet_box,
     "box_surface": gen.box_surface,
+    "ellipsoid_surface": gen.ellipsoid_surface,
     "cylinder_surface": gen.cylinder_surface,
     "hourglass_surface": gen.hourglass_surface,
     "disk": gen.tri_disk,
@@ -56,6 +57,16 @@ class BuiltScene:
 
 def _load_object_mesh(obj, dim: int) -> VolumeMesh | SurfaceMesh:
     want = "volume" if obj.kind == "deformable" else "surface"
+    if obj.kind == "shell":
+        from idp.mesh.surface_checks import check_shell_surface
+
+        mesh = (
+            GENERATORS[obj.generate.shape](**obj.generate.params()) if obj.generate else read_mesh(obj.mesh, kind=want)
+        )
+        if not isinstance(mesh, SurfaceMesh) or mesh.faces.shape[1] != 3:
+            raise MeshError(f"{mesh.source}: object {obj.name!r} is a shell but the mesh is not a triangle surface")
+        check_shell_surface(mesh.vertices, mesh.faces, mesh.source)
+        return mesh
     if obj.generate is not None:
         mesh = GENERATORS[obj.generate.shape](**obj.generate.params())
     else:
@@ -75,6 +86,29 @@ def _load_object_mesh(obj, dim: int) -> VolumeMesh | SurfaceMesh:
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
     rots = [r.degrees if dim == 2 else (tuple(r.axis), r.degrees) for r in (obj.rotate or [])]
     return place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+
+
+def _fixed_vertices(obj, i: int, verts: np.ndarray) -> np.ndarray:
+    """(n,) bool: the object's vertices that its ``fixed`` selectors pin."""
+    n = verts.shape[0]
+    pinned = np.zeros(n, dtype=bool)
+    for j, sel in enumerate(obj.fixed or []):
+        if sel.indices is not None:
+            idx = np.asarray(sel.indices, dtype=np.int64)
+            if idx.size and idx.max() >= n:
+                raise SceneError(
+                    f"objects[{i}].fixed[{j}].indices: index {int(idx.max())} out of range (mesh has {n} vertices)"
+                )
+            pinned[idx] = True
+        if sel.box is not None:
+            rel = (verts.min(axis=0), verts.max(axis=0)) if sel.relative else None
+            sel_idx = select_in_box(
+                verts, np.asarray(sel.box[0], float), np.asarray(sel.box[1], float), relative_to=rel
+            )
+            if sel_idx.size == 0:
+                log.warning("objects[%d].fixed[%d]: the box selects no vertex", i, j)
+            pinned[sel_idx] = True
+    return pinned
 
 
 def _vector(v, dim: int) -> np.ndarray:
@@ -102,8 +136,7 @@ def build_scene(
         except MeshError as exc:
             raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
         verts = _place(obj, mesh.vertices, dim)
-        if obj.kind == "deformable":
-            assert isinstance(mesh, VolumeMesh)  # _load_object_mesh checks the kind
+        if obj.kind in ("deformable", "shell"):
             deformables.append((i, obj, mesh, verts))
         else:
             assert isinstance(mesh, SurfaceMesh)
@@ -114,9 +147,27 @@ def build_scene(
     fixed = []
     surfaces = []
     offset = 0
+    shells: list[tuple[Any, np.ndarray, np.ndarray]] = []  # (object, global ids, global triangles)
+    object_ids: dict[str, np.ndarray] = {}
     for i, obj, mesh, verts in deformables:
         n = verts.shape[0]
         ids = np.arange(offset, offset + n)
+        object_ids[obj.name] = ids
+        if obj.kind == "shell":
+            faces = mesh.faces + offset
+            chunks.append(verts)
+            parts.append(Part(obj.name, "shell", ids, None, faces))
+            surfaces.append(faces)
+            shells.append((obj, ids, faces))
+            pinned = _fixed_vertices(obj, i, verts)
+            fix_boundary = obj.fix_boundary
+            if fix_boundary is None:  # flows pin open outlines by default (the fonts); other shells do not
+                fix_boundary = scene.flow.fix_boundary if scene.flow is not None else False
+            if fix_boundary:
+                pinned[np.unique(boundary_edges(mesh.faces))] = True
+            fixed.append(pinned)
+            offset += n
+            continue
         elements = mesh.elements + offset
         surface = boundary_faces(mesh.elements) + offset
         mat = obj.material
@@ -132,24 +183,7 @@ def build_scene(
             int(rest.growth_steps) if rest else 0,
         )
         bodies.append((obj, ids, elements, sched))
-        pinned = np.zeros(n, dtype=bool)
-        for j, sel in enumerate(obj.fixed or []):
-            if sel.indices is not None:
-                idx = np.asarray(sel.indices, dtype=np.int64)
-                if idx.size and idx.max() >= n:
-                    raise SceneError(
-                        f"objects[{i}].fixed[{j}].indices: index {int(idx.max())} out of range (mesh has {n} vertices)"
-                    )
-                pinned[idx] = True
-            if sel.box is not None:
-                rel = (verts.min(axis=0), verts.max(axis=0)) if sel.relative else None
-                sel_idx = select_in_box(
-                    verts, np.asarray(sel.box[0], float), np.asarray(sel.box[1], float), relative_to=rel
-                )
-                if sel_idx.size == 0:
-                    log.warning("objects[%d].fixed[%d]: the box selects no vertex", i, j)
-                pinned[sel_idx] = True
-        fixed.append(pinned)
+        fixed.append(_fixed_vertices(obj, i, verts))
         offset += n
     num_dynamic = offset
     cage_volume = 0.0
@@ -189,6 +223,7 @@ def build_scene(
         )
         masses += lumped_masses(N, elements, el.volumes, mat.density)
         energies.append(Body(obj.name, ids, el, sched))
+    shell_terms = _shell_terms(shells, x, masses)
     material_conditions = _material_conditions(scene, energies, parts, x)
     pinned = np.concatenate(fixed)
     free_mask = np.repeat(~pinned, dim)
@@ -231,13 +266,31 @@ def build_scene(
         "num_vertices": N,
         "num_dynamic_vertices": num_dynamic,
         "num_elements": int(sum(b.elastic.elements.shape[0] for b in energies)),
+        "num_shell_triangles": int(sum(f.shape[0] for _, _, f in shells)),
         "num_surface_primitives": int(all_surface.shape[0]),
         "num_free_dofs": int(free_mask.sum()),
         "input_intersecting_pairs": n_pairs,
     }
-    handles = _build_handles(scene, deformables, kinematic, bodies, x, pinned, np.sqrt(scene.time.h))
-    system = System(dim, x, masses, free_mask, energies, parts, scene.time.h, contact, num_dynamic, meta)
+    handles = _build_handles(scene, deformables, kinematic, object_ids, x, pinned, np.sqrt(scene.time.h))
+    linear_terms: list = []
+    flow = _normal_flow(scene, shells, x, shell_terms, linear_terms)
+    system = System(
+        dim,
+        x,
+        masses,
+        free_mask,
+        energies,
+        parts,
+        scene.time.h,
+        contact,
+        num_dynamic,
+        meta,
+        extra_terms=shell_terms,
+        linear_terms=linear_terms,
+    )
     system.conditions.extend(material_conditions)
+    if flow is not None:
+        system.conditions.append(flow)
     if handles or with_handles:
         dc = scene.dirichlet
         tol = dc.tolerance * dhat if dc.tolerance_mode == "dhat" else dc.tolerance
@@ -268,6 +321,7 @@ def build_scene(
         require_inversion_free=guards_inversion,
         require_intersection_free=c.enabled,
         preserved_pairs=preserved,
+        shell_faces=np.vstack([f for _, _, f in shells]) if shells else None,
     )
     meta["guards_inversion"] = guards_inversion
     meta["guards_intersection"] = bool(c.enabled)
@@ -291,6 +345,65 @@ def build_scene(
         on_unmet_targets=scene.dirichlet.on_unmet,
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+
+
+def _shell_terms(shells, x: np.ndarray, masses: np.ndarray) -> list[WeightedTerm]:
+    """Lumped shell masses (added into ``masses``) and each shell's membrane and bending terms (§4.4)."""
+    from idp.energies.bending import BendingEnergy
+    from idp.energies.membrane import MembraneEnergy
+    from idp.mesh.differential import vertex_areas
+    from idp.mesh.hinges import triangle_hinges
+
+    terms: list[WeightedTerm] = []
+    for obj, _ids, faces in shells:
+        m = obj.shell
+        masses += m.density * m.thickness * vertex_areas(x, faces)
+        if m.youngs_modulus > 0:
+            terms.append(
+                WeightedTerm(
+                    f"{obj.name}.membrane",
+                    MembraneEnergy(x, faces, m.youngs_modulus, m.poisson_ratio, m.thickness),
+                )
+            )
+            hinges = triangle_hinges(faces)
+            if m.bending > 0 and len(hinges):
+                terms.append(
+                    WeightedTerm(
+                        f"{obj.name}.bending",
+                        BendingEnergy(x, hinges, m.youngs_modulus, m.poisson_ratio, m.thickness, m.bending),
+                    )
+                )
+    return terms
+
+
+def _normal_flow(scene, shells, x: np.ndarray, terms: list, linear_terms: list):
+    """The §7.2 normal flow over every shell: its smoothing and push terms and its per-step condition."""
+    if scene.flow is None:
+        return None
+    from idp.stepper.normal_flow import NormalFlow
+
+    f = scene.flow
+    faces = np.vstack([fc for _, _, fc in shells])
+    mass_per_area = np.zeros(x.shape[0])
+    closed = True
+    for obj, ids, fc in shells:
+        mass_per_area[ids] = obj.shell.density * obj.shell.thickness
+        closed &= surface_topology(fc - ids[0], ids.size).is_closed
+    flow = NormalFlow(
+        x,
+        faces,
+        beta=f.beta,
+        gamma=f.gamma,
+        laplacian=f.laplacian,
+        normals=f.normals,
+        recompute_every_step=f.recompute_every_step,
+        mass_per_area=mass_per_area,
+        closed=closed,
+    )
+    if f.gamma > 0:
+        terms.append(WeightedTerm("flow.smoothing", flow.smoothing))
+    linear_terms.append(flow.force)
+    return flow
 
 
 def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.ndarray) -> list:
@@ -333,7 +446,7 @@ def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.nda
     return out
 
 
-def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) -> list[Handle]:
+def _build_handles(scene, deformables, kinematic, object_ids, x, pinned, dt: float) -> list[Handle]:
     """Handles of the deformable objects and one whole-object handle per kinematic obstacle.
 
     Selections on the rest shape are made now, so an empty selection, an index out of range, a handle on
@@ -341,9 +454,8 @@ def _build_handles(scene, deformables, kinematic, bodies, x, pinned, dt: float) 
     from idp.mesh.selection import Selection
 
     handles: list[Handle] = []
-    ids_of = {obj.name: ids for obj, ids, _, _ in bodies}
     for i, obj, mesh, _ in deformables:
-        ids = ids_of[obj.name]
+        ids = object_ids[obj.name]
         for j, hs in enumerate(obj.handles):
             key = f"objects[{i}].handles[{j}]"
             try:

@@ -35,6 +35,7 @@ from idp.scene.conditions_schema import (
     SelectionSpec,
     SphereSpec,
 )
+from idp.scene.shell_schema import FlowConfig, ShellMaterial
 from idp.scene.schema_base import (
     Bool,
     Float,
@@ -301,6 +302,20 @@ class BoxSurfaceGen(_Generator):
         return self
 
 
+class EllipsoidSurfaceGen(_Generator):
+    """Closed ellipsoid surface (subdivided icosahedron), optionally with seeded radial noise (3D shell/obstacle)."""
+
+    dim: ClassVar[int] = 3
+    role: ClassVar[str] = "surface"
+    shape: Literal["ellipsoid_surface"] = "ellipsoid_surface"
+    radii: PosVec3 = [0.5, 0.5, 0.5]
+    center: Vec3 = [0.0, 0.0, 0.0]
+    subdivisions: Annotated[int, Strict(), Field(ge=0, le=7)] = 4
+    noise: Annotated[float, Field(ge=0, lt=0.5, allow_inf_nan=False)] = 0.0
+    smoothing: Annotated[int, Strict(), Field(ge=0)] = 0
+    seed: Annotated[int, Strict(), Field(ge=0)] = 0
+
+
 class CylinderSurfaceGen(_Generator):
     """Closed capped cylinder surface along y (3D obstacle)."""
 
@@ -409,6 +424,7 @@ GENERATORS: dict[str, type[_Generator]] = {
         EllipsoidGen,
         TetBoxGen,
         BoxSurfaceGen,
+        EllipsoidSurfaceGen,
         CylinderSurfaceGen,
         HourglassSurfaceGen,
         DiskGen,
@@ -424,6 +440,7 @@ Generate = Annotated[
     | EllipsoidGen
     | TetBoxGen
     | BoxSurfaceGen
+    | EllipsoidSurfaceGen
     | CylinderSurfaceGen
     | HourglassSurfaceGen
     | DiskGen
@@ -443,16 +460,19 @@ def _shapes(dim: int, role: str) -> str:
 
 
 class SceneObject(_Model):
-    """One mesh in the scene: a deformable body or a static closed obstacle."""
+    """One mesh in the scene: a deformable body (tets in 3D, triangles in 2D), a shell (a triangle surface in 3D,
+    closed or open) or a closed obstacle (static, or kinematic with ``motion``)."""
 
     name: Name
-    kind: Literal["deformable", "obstacle"] = "deformable"
+    kind: Literal["deformable", "shell", "obstacle"] = "deformable"
     mesh: Path | None = None
     generate: Generate | None = None
     scale: Scale = 1.0
     rotate: list[Rotation] = Field(default_factory=list)
     translate: list[Float] | None = None  # filled with zeros (dim entries) by Scene
     material: Material | None = None  # filled with Material() for deformables
+    shell: ShellMaterial | None = None  # filled with ShellMaterial() for shells
+    fix_boundary: Bool | None = None  # shells: pin the boundary vertices of open surfaces (default: no; flows: yes)
     rest_shape: RestShape | None = None  # filled with RestShape() for deformables
     fixed: list[FixedSelector] = Field(default_factory=list)
     handles: list[HandleSpec] = Field(default_factory=list)
@@ -473,6 +493,18 @@ class SceneObject(_Model):
             probs.append(("mesh", "give exactly one of `mesh` (a file) or `generate` (a procedural shape)"))
         elif self.mesh is not None and self.generate is not None:
             probs.append(("generate", "give either `mesh` or `generate`, not both"))
+        if self.kind != "shell":
+            for key in ("shell", "fix_boundary"):
+                if getattr(self, key) is not None:
+                    probs.append((key, 'only allowed on shell objects (kind = "shell")'))
+        if self.kind == "shell":
+            for key in ("material", "rest_shape", "plasticity", "motion"):
+                if getattr(self, key) is not None:
+                    what = "give a shell's material as `shell`" if key == "material" else "not supported on shells"
+                    probs.append((key, what))
+            for key in ("material_stages", "rest_scripts"):
+                if getattr(self, key):
+                    probs.append((key, "not supported on shells"))
         if self.kind == "obstacle":
             for key in ("material", "rest_shape"):
                 if getattr(self, key) is not None:
@@ -499,6 +531,8 @@ class SceneObject(_Model):
         if self.generate is not None:
             gen = self.generate
             want = "volume" if self.kind == "deformable" else "surface"
+            if self.kind == "shell" and gen.role != "surface":
+                probs.append(("generate.shape", f"'{gen.shape}' makes a volume mesh; a shell needs a surface"))
             # an obstacle may also be generated as a solid (ball, ellipsoid, box, disk): its boundary is used
             if gen.role != want and want == "volume":
                 what = "a volume mesh" if gen.role == "volume" else "a closed surface/polygon"
@@ -517,6 +551,8 @@ class SceneObject(_Model):
                 self.material = Material()
             if self.rest_shape is None:
                 self.rest_shape = RestShape()
+        if self.kind == "shell" and self.shell is None:
+            self.shell = ShellMaterial()
         return self
 
 
@@ -564,6 +600,7 @@ class Scene(_Model):
     contact: ContactConfig = Field(default_factory=ContactConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
     dirichlet: DirichletConfig = Field(default_factory=DirichletConfig)
+    flow: FlowConfig | None = None
     objects: list[SceneObject]
 
     @model_validator(mode="after")
@@ -621,8 +658,12 @@ class Scene(_Model):
                         f"'{ob.generate.shape}' is a {ob.generate.dim}D shape but dim = {d}",
                     )
                 )
-        if not any(ob.kind == "deformable" for ob in self.objects):
-            probs.append(("objects", "at least one deformable object is required"))
+            if ob.kind == "shell" and d != 3:
+                probs.append((f"{p}.kind", "shells are triangle surfaces in 3D (dim = 3)"))
+        if not any(ob.kind in ("deformable", "shell") for ob in self.objects):
+            probs.append(("objects", "at least one deformable or shell object is required"))
+        if self.flow is not None and not any(ob.kind == "shell" for ob in self.objects):
+            probs.append(("flow", 'a normal flow moves shell objects (kind = "shell"); the scene has none'))
         if probs:
             raise rule_error(probs)
         for ob in self.objects:
@@ -646,6 +687,8 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     ContactConfig,
     OutputConfig,
     Material,
+    ShellMaterial,
+    FlowConfig,
     RestShape,
     FixedSelector,
     Rotation,

@@ -108,6 +108,16 @@ def _fill_fraction(system, x) -> float | None:
     return system.deformable_volume(x) / cage
 
 
+def _condition_reports(system, x: np.ndarray) -> dict:
+    """Per-step measures offered by the conditions (e.g. the normal flow's volume), by their ``report_key``."""
+    out = {}
+    for cond in system.conditions:
+        key = getattr(cond, "report_key", None)
+        if key is not None:
+            out[key] = cond.report(system, x)
+    return out
+
+
 def run_simulation(
     system,
     newton: NewtonSettings,
@@ -159,7 +169,9 @@ def run_simulation(
     fill0 = _fill_fraction(system, x0)
     for earlier_record in previous:
         stats.add_step(earlier_record)
-    stats.add_step({"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True})
+    rec0: dict[str, Any] = {"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True}
+    rec0.update(_condition_reports(system, x0))
+    stats.add_step(rec0)
 
     progress = None
     if settings.progress:
@@ -226,6 +238,7 @@ def run_simulation(
                 rec["dirichlet"] = bc_report
                 if not bc_report["met"]:
                     unmet_steps += 1
+            rec.update(_condition_reports(system, x))
             records.append(rec)
             stats.add_step(rec)
             for cond in system.conditions:
@@ -262,6 +275,8 @@ def run_simulation(
                     post["BC"] = "met" if bc_report["met"] else f"UNMET {bc_report['residual_max']:.1e}"
                 if fill is not None:
                     post["fill"] = f"{100 * fill:.2f}%"
+                elif rec.get("flow", {}).get("volume_ratio") is not None:
+                    post["volume"] = f"x{rec['flow']['volume_ratio']:.3f}"
                 else:
                     post["E"] = f"{res.energy:.3e}"
                 progress.set_postfix(post)
@@ -293,6 +308,7 @@ def run_simulation(
         "uncertified_frames": uncertified,
         "all_certified": uncertified == 0,
         "fill_fraction": _fill_fraction(system, x),
+        **_condition_reports(system, x),
         "dhat": system.meta.get("dhat"),
         "initial_fill_fraction": fill0,
         "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),

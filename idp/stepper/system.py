@@ -80,6 +80,13 @@ class System:
         dyn = self.masses[: self.num_dynamic_vertices]
         self.average_mass = float(dyn[dyn > 0].mean()) if np.any(dyn > 0) else 1.0
 
+    def set_masses(self, masses: np.ndarray) -> None:
+        """Replace the lumped masses M (a normal flow rebuilds them from the current shape)."""
+        self.masses = np.asarray(masses, dtype=float)
+        self.inertia = Inertia(self.masses, self.dim)
+        if self.step_constraint is not None and hasattr(self.step_constraint, "masses"):
+            self.step_constraint.masses = self.masses
+
     @property
     def elements(self) -> list[np.ndarray]:
         return [b.elastic.elements for b in self.bodies]

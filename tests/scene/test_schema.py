@@ -148,7 +148,7 @@ BAD_CASES = {
     ),
     "no deformable": (
         _set("objects", [{"name": "box", "kind": "obstacle", "generate": {"shape": "box_surface"}}]),
-        r"objects: at least one deformable object is required",
+        r"objects: at least one deformable or shell object is required",
     ),
     "kappa": (_set("contact.kappa", -3.0), r"contact\.kappa: must be \"auto\" or a number > 0"),
     "bool type": (_set("output.png", "yes"), r"output\.png: must be true or false"),

@@ -1,0 +1,58 @@
+"""Scene sections of shells (triangle surfaces in 3D, paper §4.4) and of normal flow (paper §7.2)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from idp.scene.schema_base import Bool, PosFloat, _Model, rule_error
+
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class ShellMaterial(_Model):
+    """Material of a shell object: StVK membrane (``youngs_modulus`` E, ``poisson_ratio`` ν, ``thickness`` t) and
+    discrete-shell bending scaled by ``bending`` (stiffness ``bending`` · E t³ / (12 (1 − ν²))).
+
+    E = 0 turns the membrane off and ``bending`` = 0 the bending off (the normal flow's shells carry no elastic
+    energy, as in the authors' set-up). Lumped masses are ``density`` · ``thickness`` · (vertex area)."""
+
+    youngs_modulus: NonNegFloat = 1e4
+    poisson_ratio: Annotated[float, Field(gt=-1, lt=0.5, allow_inf_nan=False)] = 0.3
+    thickness: PosFloat = 1e-3
+    density: PosFloat = 1000.0
+    bending: NonNegFloat = 1.0
+
+
+class FlowConfig(_Model):
+    """Normal flow (paper §7.2, eq. 7): E(x, Nᵗ) = B(x) − γ ½ xᵀLx − β xᵀNᵗ over every shell object.
+
+    ``beta`` β: flow speed, > 0 outward, < 0 inward (with ``time.h`` = 1 and lumped-unit normals a free vertex
+    moves about β per step). ``gamma`` γ ≥ 0: smoothing intensity. ``laplacian``: ``area`` (umbrella weights
+    from the initial triangle areas, as the authors' code) or ``cotangent``. ``normals``: ``lumped_unit``
+    (Nᵢ = mᵢ n̂ᵢ, the authors' force) or ``area`` (Σ A_t n̂_t / 3). ``recompute``: when M and L are rebuilt from
+    the current shape — ``auto`` every step for negative flows (the paper does, for smoother sequences) and
+    never for positive ones, or ``always`` / ``never``. ``fix_boundary``: pin every boundary vertex of open
+    shells (default, as for the fonts).
+
+    The authors' parameters map as: smoothIntensity s → ``gamma`` = s, magnitude → ``beta`` = magnitude (their
+    dt = s and force magnitude/s² make the per-step push equal to the magnitude), with ``time.h`` = 1."""
+
+    beta: Annotated[float, Field(allow_inf_nan=False)]
+    gamma: NonNegFloat = 0.5
+    laplacian: Literal["area", "cotangent"] = "area"
+    normals: Literal["lumped_unit", "area"] = "lumped_unit"
+    recompute: Literal["auto", "always", "never"] = "auto"
+    fix_boundary: Bool = True
+
+    @model_validator(mode="after")
+    def _nonzero(self) -> FlowConfig:
+        if self.beta == 0:
+            raise rule_error([("beta", "must be non-zero (> 0 flows outward, < 0 inward)")])
+        return self
+
+    @property
+    def recompute_every_step(self) -> bool:
+        """Whether M and L follow the current shape (``auto``: for negative flows)."""
+        return self.recompute == "always" or (self.recompute == "auto" and self.beta < 0)
