@@ -35,7 +35,6 @@ from idp.scene.conditions_schema import (
     SelectionSpec,
     SphereSpec,
 )
-from idp.scene.shell_schema import FlowConfig, ShellMaterial
 from idp.scene.schema_base import (
     Bool,
     Float,
@@ -56,6 +55,7 @@ from idp.scene.schema_base import (
     check_corner_box,
     rule_error,
 )
+from idp.scene.shell_schema import FlowConfig, ShellMaterial
 
 # ---------------------------------------------------------------------------------------------
 # Global sections
