@@ -40,6 +40,7 @@ def make_ccd(name: str):
 
 
 BARRIERS = ("compiled", "ipctk")
+NEAR_CONTACT = 1e-4  # gaps below NEAR_CONTACT·d̂: additive CCD plus the pairwise Lipschitz bound
 
 
 @dataclass
@@ -245,16 +246,24 @@ class ContactModel:
 
     # -- CCD and checks -------------------------------------------------------
     def max_collision_free_step(
-        self, x0: np.ndarray, x1: np.ndarray, candidates=None, current_min_distance: float = np.inf
+        self,
+        x0: np.ndarray,
+        x1: np.ndarray,
+        candidates=None,
+        current_min_distance: float = np.inf,
+        ev: ContactEvaluation | None = None,
     ) -> float:
         """Largest α in [0, 1] such that the linear move x0 → x0 + α(x1 − x0) is collision-free (CCD).
 
         Tight Inclusion's interval splitting degenerates when a pair is already nearly touching (measured:
         minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the additive CCD is used for that
-        query, capped by a Lipschitz bound on the gaps (additive CCD alone is not provably conservative there)."""
+        query, and the nearly touching pairs are advanced conservatively with exact distances
+        (:mod:`idp.contact.near_contact_ccd`; additive CCD alone is not provably conservative there), or, without
+        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).  ``ev``: the collision set at x0
+        (evaluated here when needed and not given)."""
         v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
         ccd = self._ccd
-        near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < 1e-4 * self.dhat
+        near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < NEAR_CONTACT * self.dhat
         if near_contact:
             ccd = self._fallback_ccd
             self.ccd_fallbacks += 1
@@ -262,15 +271,59 @@ class ContactModel:
             alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
         else:
             alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
-        if near_contact:
-            # Additive CCD is not provably conservative: at gaps of ~1e-10 (squared distances below the rounding
-            # of the coordinates) it returned α = 1 for a move that crossed (Fig. 3 armadillo, step 104). Bound
-            # it by the distance's Lipschitz constant: no pair's distance falls by more than twice the largest
-            # vertex displacement, so α ≤ ½·d_min / (2·max|Δv|) keeps every gap above half its current value.
-            move = float(np.sqrt(((v1 - v0) ** 2).sum(axis=1).max(initial=0.0)))
-            if move > 0.0:
-                alpha = min(alpha, 0.25 * current_min_distance / move)
+        if near_contact and self.compiled:
+            from idp.contact.near_contact_ccd import conservative_step, near_pairs
+
+            fv, ee = candidates if candidates is not None else self._candidates(v0, v1)
+            pairs, is_pt = near_pairs(v0, self._edges, self._faces, fv, ee, NEAR_CONTACT * self.dhat)
+            alpha = conservative_step(v0, v1, pairs, is_pt, alpha_max=alpha)
+        elif near_contact:
+            alpha = min(alpha, self._near_pair_step_bound(v0, v1, ev if ev is not None else self.evaluate(x0)))
         return alpha
+
+    def _near_pair_step_bound(self, v0: np.ndarray, v1: np.ndarray, ev: ContactEvaluation) -> float:
+        """α keeping every pair closer than 1e-4·d̂ at more than half its gap along v0 → v1.
+
+        Additive CCD is not provably conservative: at gaps of ~1e-10 (squared distances below the rounding of
+        the coordinates) it returned α = 1 for a move that crossed (Fig. 3 armadillo, step 104).  For two
+        primitives with vertices a_i and b_j, every point difference p − q is a convex combination of the
+        a_i − b_j, so the gap falls by at most α·max_ij |Δa_i − Δb_j| ≤ α·M, M the largest displacement
+        difference between any two of the pair's vertices; α ≤ ½·d/M keeps it above d/2 (relative, not absolute,
+        displacements: a common translation costs nothing)."""
+        if ev.num_active == 0:
+            return 1.0
+        limit2 = (NEAR_CONTACT * self.dhat) ** 2
+        if self.compiled:
+            cs = ev.collisions
+            near = np.flatnonzero(cs.sqdist < limit2)
+            verts = np.asarray(cs.verts[near], dtype=np.int64)
+            sqd = np.asarray(cs.sqdist[near], dtype=float)
+        else:
+            coll = ev.collisions
+            E, F = self.mesh.edges, self.mesh.faces
+            rows, dists = [], []
+            for i in range(len(coll)):
+                c = coll[i]
+                d2 = float(c.compute_distance(c.dof(ev.surface_positions, E, F)))
+                if d2 < limit2:
+                    ids = list(c.vertex_ids(E, F))
+                    rows.append(ids + [-1] * (4 - len(ids)))
+                    dists.append(d2)
+            verts = np.asarray(rows, dtype=np.int64).reshape(-1, 4)
+            sqd = np.asarray(dists, dtype=float)
+        if verts.shape[0] == 0:
+            return 1.0
+        dv = v1 - v0
+        moves = np.zeros(verts.shape[0])
+        for i in range(4):
+            for j in range(i + 1, 4):
+                ok = (verts[:, i] >= 0) & (verts[:, j] >= 0)
+                diff = dv[verts[ok, i]] - dv[verts[ok, j]]
+                moves[ok] = np.maximum(moves[ok], np.sqrt((diff**2).sum(axis=1)))
+        moving = moves > 0.0
+        if not moving.any():
+            return 1.0
+        return float(min(1.0, np.min(0.5 * np.sqrt(np.maximum(sqd[moving], 0.0)) / moves[moving])))
 
     def has_intersections(self, x: np.ndarray) -> bool:
         return bool(ipctk.has_intersections(self.mesh, self.surface_positions(x), self.broad_phase()))

@@ -176,14 +176,19 @@ class GrowingBlockPattern:
         keys, inv = np.unique(self._vertex_keys(rows, cols), return_inverse=True)
         if keys.size > self.fold_limit:
             return False
-        sigma = np.sqrt(np.bincount(inv, weights=vals * vals, minlength=keys.size))
+        # several collisions may couple the same two vertices: σ must bound the norm of their *sum*, so add
+        # the entries first (the root of the summed squares of the separate blocks can be smaller)
+        n = self.base.nfv * d
+        entry, einv = np.unique(rows * n + cols, return_inverse=True)
+        summed = np.bincount(einv, weights=vals, minlength=entry.size)
+        entry_key = inv[np.unique(einv, return_index=True)[1]]
+        sigma = np.sqrt(np.bincount(entry_key, weights=summed * summed, minlength=keys.size))
         vi = keys // self.base.nfv
         drows = (vi[:, None] * d + np.arange(d)[None, :]).ravel()
         pos, found = self.layout.entry_positions(drows, drows)
         assert found.all(), "diagonal blocks are always in the pattern"
         sig = np.repeat(sigma, d)
         np.add.at(data, pos, sig)
-        n = self.base.nfv * d
         self.fold_correction = sp.csr_matrix(
             (np.concatenate([vals, -sig]), (np.concatenate([rows, drows]), np.concatenate([cols, drows]))), shape=(n, n)
         )

@@ -184,7 +184,7 @@ class StepSolver:
             t1 = time.perf_counter()
             if ev is None:
                 ev = self._contact_eval(x, res)
-            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev))
+            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev), ev)
             res.timings["contact_build"] += t1 - t
             res.timings["ccd"] += time.perf_counter() - t1
             alpha *= alpha_ccd

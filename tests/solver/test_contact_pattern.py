@@ -193,3 +193,26 @@ def test_many_missing_collision_blocks_grow_the_pattern_exactly():
     M = pattern.assemble_blocks(data, bv, cb)
     assert pattern.growths == 1
     assert np.allclose(M.toarray(), _reference(asm, blocks, diag, C, dmap))
+
+
+def test_folding_bounds_the_sum_of_collisions_that_share_a_coupling():
+    """Two collision blocks coupling the same two far-apart vertices: the fold must bound their summed coupling
+    (root of the summed squares of the separate blocks is too small for rank-one blocks that add up)."""
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
+    data = asm.assemble_data([blocks], [1.0], diag)
+    n = np.array([0.6, 0.0, 0.8])
+    u = np.concatenate([n, -n])
+    block = np.zeros((12, 12))
+    block[:6, :6] = 1e3 * np.outer(u, u)  # rank one, PSD: pushes the two vertices apart along n
+    free = dmap.global_to_free[::DIM] // DIM
+    verts = np.array([[free[2], free[15], -1, -1]] * 2, dtype=np.int32)
+    M = pattern.assemble_blocks(data, verts, np.stack([block, block]))
+    assert pattern.folds == 1
+    exact = asm.assemble([blocks], [1.0], diag).toarray()
+    for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        ra = free[(2, 15)[a]] * DIM + np.arange(DIM)
+        rb = free[(2, 15)[b]] * DIM + np.arange(DIM)
+        exact[np.ix_(ra, rb)] += 2 * block[a * DIM : a * DIM + DIM, b * DIM : b * DIM + DIM]
+    gap = M.toarray() - exact
+    assert np.linalg.eigvalsh(gap).min() > -1e-9 * np.abs(exact).max()  # M ⪰ exact Hessian
