@@ -259,8 +259,8 @@ class ContactModel:
         minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the additive CCD is used for that
         query, and the nearly touching pairs are advanced conservatively with exact distances
         (:mod:`idp.contact.near_contact_ccd`; additive CCD alone is not provably conservative there), or, without
-        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).  ``ev``: the collision set at x0
-        (evaluated here when needed and not given)."""
+        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).  ``ev``: the collision
+        set at x0 (evaluated here when needed and not given)."""
         v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
         ccd = self._ccd
         near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < NEAR_CONTACT * self.dhat

@@ -198,7 +198,7 @@ def test_many_missing_collision_blocks_grow_the_pattern_exactly():
 def test_folding_bounds_the_sum_of_collisions_that_share_a_coupling():
     """Two collision blocks coupling the same two far-apart vertices: the fold must bound their summed coupling
     (root of the summed squares of the separate blocks is too small for rank-one blocks that add up)."""
-    rng, dmap, asm, blocks, diag = _chain_problem()
+    _rng, dmap, asm, blocks, diag = _chain_problem()
     pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
     data = asm.assemble_data([blocks], [1.0], diag)
     n = np.array([0.6, 0.0, 0.8])
