@@ -57,10 +57,34 @@ def _cmd_flow(args) -> int:
         steps=args.steps,
         dhat=args.dhat,
         laplacian=args.laplacian,
+        normals=args.normals,
         recompute=args.recompute,
         fix_boundary=not args.free_boundary,
         preserve_input_intersections=args.preserve_intersections,
+        newton_tol=args.newton_tol,
         output_dir=out,
+    )
+    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
+    _print_summary(result, out)
+    return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
+
+
+def _cmd_font(args) -> int:
+    _set_threads(args.threads)
+    from idp.applications.inflated_text import text_flow_scene
+    from idp.applications.normal_flow import run_flow
+
+    out = Path(args.output)
+    scene = text_flow_scene(
+        args.text,
+        out,
+        font=args.font,
+        height=args.height,
+        edge_length=args.edge_length,
+        beta=args.beta,
+        gamma=args.smoothing,
+        steps=args.steps,
+        dhat=args.dhat,
     )
     result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
     _print_summary(result, out)
@@ -161,6 +185,13 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--steps", type=int, default=10)
     f.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
     f.add_argument("--laplacian", choices=["area", "cotangent"], default="area")
+    f.add_argument(
+        "--normals",
+        choices=["mass", "lumped_unit", "area"],
+        default="mass",
+        help="push weighting: mass (beta per step everywhere), lumped_unit (the authors': current areas), area",
+    )
+    f.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex to stop at (default 0.02 |beta|)")
     f.add_argument("--recompute", choices=["auto", "always", "never"], default="auto", help="rebuild M and L per step")
     f.add_argument("--free-boundary", action="store_true", help="let the boundary of an open surface move")
     f.add_argument(
@@ -173,6 +204,21 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--resume", action="store_true")
     f.add_argument("-q", "--quiet", action="store_true")
     f.set_defaults(func=_cmd_flow)
+
+    t = sub.add_parser("font", help="inflated 3D text: mesh a string, then inflate it by normal flow (paper §7.2)")
+    t.add_argument("text", help='the text; "\\n" breaks lines')
+    t.add_argument("--font", help="TrueType/OpenType file (default: DejaVu Sans)")
+    t.add_argument("--height", type=float, default=0.3, help="cap height in scene units")
+    t.add_argument("--edge-length", type=float, help="target edge length (default height/40)")
+    t.add_argument("--beta", type=float, default=5e-3, help="push per step towards +z (< 0: towards -z)")
+    t.add_argument("--smoothing", type=float, default=0.5, help="smoothing intensity gamma (>= 0)")
+    t.add_argument("--steps", type=int, default=10)
+    t.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
+    t.add_argument("-o", "--output", default="out/font")
+    t.add_argument("--threads", type=int)
+    t.add_argument("--resume", action="store_true")
+    t.add_argument("-q", "--quiet", action="store_true")
+    t.set_defaults(func=_cmd_font)
 
     c = sub.add_parser("check", help="report counts, closedness, inverted/degenerate elements, self-intersections")
     c.add_argument("meshes", nargs="+")

@@ -25,7 +25,7 @@ def flow_scene(
     dhat: float = DEFAULT_DHAT,
     name: str | None = None,
     laplacian: str = "area",
-    normals: str = "lumped_unit",
+    normals: str = "mass",
     recompute: str = "auto",
     fix_boundary: bool = True,
     preserve_input_intersections: bool = False,
@@ -41,7 +41,7 @@ def flow_scene(
         "name": name or Path(str(mesh)).stem,
         "dim": 3,
         "time": {"h": 1.0, "steps": int(steps)},
-        "solver": {"newton_tol": float(tol)},
+        "solver": {"newton_tol": float(tol), "newton_norm": "rms"},
         "contact": {"dhat": float(dhat), "preserve_input_intersections": bool(preserve_input_intersections)},
         "flow": {
             "beta": float(beta),

@@ -328,6 +328,7 @@ def build_scene(
     s = scene.solver
     newton = NewtonSettings(
         tol=s.newton_tol,
+        norm=s.newton_norm,
         max_iterations=s.max_newton_iterations,
         inversion_eta=s.inversion_eta,
         check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,

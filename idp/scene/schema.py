@@ -74,6 +74,7 @@ class SolverConfig(_Model):
     """Projected Newton settings."""
 
     newton_tol: PosFloat = 1e-2
+    newton_norm: Literal["max", "rms"] = "max"
     max_newton_iterations: PosInt = 200
     on_nonconvergence: Literal["warn", "error"] = "warn"
     linear_solver: Literal["auto", "cholmod", "scipy"] = "auto"
@@ -471,7 +472,7 @@ class SceneObject(_Model):
     rotate: list[Rotation] = Field(default_factory=list)
     translate: list[Float] | None = None  # filled with zeros (dim entries) by Scene
     material: Material | None = None  # filled with Material() for deformables
-    shell: ShellMaterial | None = None  # filled with ShellMaterial() for shells
+    shell: ShellMaterial | None = None  # filled by Scene: ShellMaterial() (or no elasticity in a flow)
     fix_boundary: Bool | None = None  # shells: pin the boundary vertices of open surfaces (default: no; flows: yes)
     rest_shape: RestShape | None = None  # filled with RestShape() for deformables
     fixed: list[FixedSelector] = Field(default_factory=list)
@@ -551,8 +552,6 @@ class SceneObject(_Model):
                 self.material = Material()
             if self.rest_shape is None:
                 self.rest_shape = RestShape()
-        if self.kind == "shell" and self.shell is None:
-            self.shell = ShellMaterial()
         return self
 
 
@@ -666,6 +665,14 @@ class Scene(_Model):
             probs.append(("flow", 'a normal flow moves shell objects (kind = "shell"); the scene has none'))
         if probs:
             raise rule_error(probs)
+        for ob in self.objects:
+            if ob.kind == "shell" and ob.shell is None:
+                # in a flow, the paper's shells: no elastic energy, density 1, thickness 1
+                ob.shell = (
+                    ShellMaterial()
+                    if self.flow is None
+                    else ShellMaterial(youngs_modulus=0.0, bending=0.0, density=1.0, thickness=1.0)
+                )
         for ob in self.objects:
             if ob.translate is None:
                 ob.translate = [0.0] * d

@@ -16,7 +16,8 @@ class ShellMaterial(_Model):
     discrete-shell bending scaled by ``bending`` (stiffness ``bending`` · E t³ / (12 (1 − ν²))).
 
     E = 0 turns the membrane off and ``bending`` = 0 the bending off (the normal flow's shells carry no elastic
-    energy, as in the authors' set-up). Lumped masses are ``density`` · ``thickness`` · (vertex area)."""
+    energy, as in the authors' set-up; a shell without a ``shell`` table in a scene with ``[flow]`` gets exactly
+    that: E = 0, bending 0, density 1, thickness 1). Lumped masses are ``density`` · ``thickness`` · (vertex area)."""
 
     youngs_modulus: NonNegFloat = 1e4
     poisson_ratio: Annotated[float, Field(gt=-1, lt=0.5, allow_inf_nan=False)] = 0.3
@@ -30,8 +31,11 @@ class FlowConfig(_Model):
 
     ``beta`` β: flow speed, > 0 outward, < 0 inward (with ``time.h`` = 1 and lumped-unit normals a free vertex
     moves about β per step). ``gamma`` γ ≥ 0: smoothing intensity. ``laplacian``: ``area`` (umbrella weights
-    from the initial triangle areas, as the authors' code) or ``cotangent``. ``normals``: ``lumped_unit``
-    (Nᵢ = mᵢ n̂ᵢ, the authors' force) or ``area`` (Σ A_t n̂_t / 3). ``recompute``: when M and L are rebuilt from
+    from the initial triangle areas, as the authors' code) or ``cotangent``. ``normals``: ``mass`` (Nᵢ = mᵢ n̂ᵢ
+    with the masses of M: an unobstructed, unsmoothed vertex moves exactly β n̂ᵢ per step), ``lumped_unit`` (the
+    authors' force: Nᵢ = aᵢ n̂ᵢ with aᵢ the *current* lumped area, while M keeps the start areas, so the push of
+    a vertex grows with its triangles; on the cat a vertex whose area grew 10⁴-fold flew off) or ``area``
+    (Σ A_t n̂_t / 3). ``recompute``: when M and L are rebuilt from
     the current shape — ``auto`` every step for negative flows (the paper does, for smoother sequences) and
     never for positive ones, or ``always`` / ``never``. ``fix_boundary``: pin every boundary vertex of open
     shells (default, as for the fonts).
@@ -42,7 +46,7 @@ class FlowConfig(_Model):
     beta: Annotated[float, Field(allow_inf_nan=False)]
     gamma: NonNegFloat = 0.5
     laplacian: Literal["area", "cotangent"] = "area"
-    normals: Literal["lumped_unit", "area"] = "lumped_unit"
+    normals: Literal["mass", "lumped_unit", "area"] = "mass"
     recompute: Literal["auto", "always", "never"] = "auto"
     fix_boundary: Bool = True
 

@@ -5,7 +5,8 @@ The smoothing −γ ½ xᵀLx is an element term (:class:`idp.mesh.differential.
 the flow runs on the shared Newton loop, CCD line search and certificate. This condition only does what
 changes per step:
 
-* ``before_step``: Nᵗ from the surface at the start of the step; when asked (negative flows, by default), the
+* ``before_step``: Nᵗ from the surface at the start of the step (``mass``: Nᵢ = mᵢ n̂ᵢ with the masses of M, so an
+  unobstructed, unsmoothed step moves every vertex by β n̂ᵢ); when asked (negative flows, by default), the
   lumped masses M and the Laplacian's weights are rebuilt from the current shape too (the paper does this for
   smoother inward sequences);
 * ``report``: enclosed volume (closed shells) or area, its ratio to the input, and the surface area.
@@ -17,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from idp.mesh.differential import LaplacianSmoothing, NormalForce, vertex_areas
+from idp.mesh.differential import LaplacianSmoothing, NormalForce, vertex_areas, vertex_normals
 from idp.mesh.surface import enclosed_volume
 
 
@@ -34,7 +35,7 @@ class NormalFlow:
         beta: float,
         gamma: float,
         laplacian: str = "area",
-        normals: str = "lumped_unit",
+        normals: str = "mass",
         recompute_every_step: bool = False,
         mass_per_area: np.ndarray | float = 1.0,
         closed: bool = True,
@@ -49,7 +50,10 @@ class NormalFlow:
         self.closed = bool(closed)
         self.vertices = np.unique(self.faces)
         self.smoothing = LaplacianSmoothing(x, self.faces, self.gamma, weights=laplacian)
-        self.force = NormalForce(self.faces, self.num_vertices, self.beta, weighting=normals)
+        self.normals = normals
+        self.force = NormalForce(
+            self.faces, self.num_vertices, self.beta, weighting="lumped_unit" if normals == "mass" else normals
+        )
         self.initial_volume = self._volume(x)
         self.initial_area = self._area(x)
 
@@ -61,12 +65,20 @@ class NormalFlow:
         return float(enclosed_volume(x, self.faces)) if self.closed else None
 
     def before_step(self, system: Any, step: int, x: np.ndarray) -> None:
-        self.force.update(x)
         if self.recompute_every_step and step > 1:
             self.smoothing.set_weights(x)
             masses = system.masses.copy()
             masses[self.vertices] = (self.mass_per_area * vertex_areas(x, self.faces))[self.vertices]
             system.set_masses(masses)
+        if self.normals == "mass":
+            # Nᵢ = mᵢ n̂ᵢ with mᵢ the mass in M (not the current area): the push is then β n̂ at every vertex
+            # whatever its share of area.  Current areas against masses frozen at the start ("lumped_unit", the
+            # authors' force) let a vertex whose triangles grew (from 1e-7 to 1e-3 on the cat) take a push 10⁴
+            # times its inertia and fly off.
+            unit = vertex_normals(x, self.faces, unit=True)
+            self.force.set_normals(np.asarray(system.masses, dtype=float)[:, None] * unit)
+        else:
+            self.force.update(x)
 
     def report(self, system: Any, x: np.ndarray) -> dict:
         vol, area = self._volume(x), self._area(x)

@@ -219,6 +219,7 @@ def run_simulation(
                 "alphas": res.alphas,
                 "ccd_alphas": res.ccd_alphas,
                 "inversion_alphas": res.inversion_alphas,
+                "decrements": res.decrements,
                 "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
                 "pcg_iterations": res.pcg_iterations,
                 "exact_refactorizations": res.exact_refactorizations,
