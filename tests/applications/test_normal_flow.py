@@ -4,6 +4,7 @@ before any output is written."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -13,7 +14,7 @@ import pytest
 
 from idp.api import simulate
 from idp.cli import main
-from idp.errors import IntersectingInputError, MeshError
+from idp.errors import IntersectingInputError
 from idp.mesh.generate import ellipsoid_surface, tri_disk
 from idp.mesh.surface import enclosed_volume
 from idp.scene.load import scene_from_dict
@@ -85,7 +86,7 @@ def test_negative_flow_on_a_dumbbell_shrinks_it_certified_every_iterate(tmp_path
     stats = _stats(tmp_path)
     assert _all_certified(stats) and res.summary["all_certified"]
     vols = [s["flow"]["volume"] for s in stats["steps"]]
-    assert all(v1 < v0 for v0, v1 in zip(vols, vols[1:], strict=False))
+    assert all(v1 < v0 for v0, v1 in itertools.pairwise(vols))
     assert vols[-1] < 0.85 * vols[0]
 
 
