@@ -181,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("flow", help="globally injective normal flow of a triangle surface (paper §7.2)")
     f.add_argument("mesh", help="triangle surface (OBJ, PLY, STL, ...; or data:flow/cat.obj)")
     f.add_argument("--beta", type=float, default=5e-3, help="flow speed per step: > 0 outward, < 0 inward")
-    f.add_argument("--smoothing", type=float, default=0.5, help="smoothing intensity gamma (>= 0)")
+    f.add_argument("--smoothing", type=float, default=0.25, help="smoothing gamma >= 0 (the authors' s: gamma = s^2)")
     f.add_argument("--steps", type=int, default=10)
     f.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
     f.add_argument("--laplacian", choices=["area", "cotangent"], default="area")
@@ -191,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="mass",
         help="push weighting: mass (beta per step everywhere), lumped_unit (the authors': current areas), area",
     )
-    f.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex to stop at (default 0.02 |beta|)")
+    f.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex to stop at (default 0.05 |beta|)")
     f.add_argument("--recompute", choices=["auto", "always", "never"], default="auto", help="rebuild M and L per step")
     f.add_argument("--free-boundary", action="store_true", help="let the boundary of an open surface move")
     f.add_argument(
@@ -211,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--height", type=float, default=0.3, help="cap height in scene units")
     t.add_argument("--edge-length", type=float, help="target edge length (default height/40)")
     t.add_argument("--beta", type=float, default=5e-3, help="push per step towards +z (< 0: towards -z)")
-    t.add_argument("--smoothing", type=float, default=0.5, help="smoothing intensity gamma (>= 0)")
+    t.add_argument("--smoothing", type=float, default=0.25, help="smoothing gamma >= 0 (the authors' s: gamma = s^2)")
     t.add_argument("--steps", type=int, default=10)
     t.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
     t.add_argument("-o", "--output", default="out/font")

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from idp.scene.schema import Scene
+from idp.scene.shell_schema import FLOW_TOL_FRACTION
 
 DEFAULT_DHAT = 1e-3  # the authors' absolute d̂ for every flow (manifest, flow/)
 
@@ -20,7 +21,7 @@ def flow_scene(
     mesh: str | Path,
     *,
     beta: float,
-    gamma: float = 0.5,
+    gamma: float = 0.25,
     steps: int = 10,
     dhat: float = DEFAULT_DHAT,
     name: str | None = None,
@@ -34,9 +35,10 @@ def flow_scene(
 ) -> Scene:
     """A validated normal-flow scene for the triangle surface ``mesh`` (a file path, or ``data:flow/cat.obj``).
 
-    ``beta`` is the per-step push (time.h = 1), ``gamma`` the smoothing; ``newton_tol`` defaults to 2 % of |β|
+    ``beta`` is the per-step push (time.h = 1), ``gamma`` the smoothing; ``newton_tol`` (RMS of the Newton step
+    per vertex) defaults to 5 % of |β|
     (Newton stops when no vertex would move further than that)."""
-    tol = newton_tol if newton_tol is not None else 0.02 * abs(beta)
+    tol = newton_tol if newton_tol is not None else FLOW_TOL_FRACTION * abs(beta)
     doc: dict[str, Any] = {
         "name": name or Path(str(mesh)).stem,
         "dim": 3,

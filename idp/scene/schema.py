@@ -55,7 +55,7 @@ from idp.scene.schema_base import (
     check_corner_box,
     rule_error,
 )
-from idp.scene.shell_schema import FlowConfig, ShellMaterial
+from idp.scene.shell_schema import FLOW_TOL_FRACTION, FlowConfig, ShellMaterial
 
 # ---------------------------------------------------------------------------------------------
 # Global sections
@@ -665,6 +665,12 @@ class Scene(_Model):
             probs.append(("flow", 'a normal flow moves shell objects (kind = "shell"); the scene has none'))
         if probs:
             raise rule_error(probs)
+        if self.flow is not None:
+            # a flow's step moves ~|β|: a stopping rule in those units unless the scene gives its own
+            if "newton_tol" not in self.solver.model_fields_set:
+                self.solver.newton_tol = FLOW_TOL_FRACTION * abs(self.flow.beta)
+            if "newton_norm" not in self.solver.model_fields_set:
+                self.solver.newton_norm = "rms"
         for ob in self.objects:
             if ob.kind == "shell" and ob.shell is None:
                 # in a flow, the paper's shells: no elastic energy, density 1, thickness 1
