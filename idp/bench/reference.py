@@ -55,6 +55,14 @@ REFERENCE = {
         "fill": 0.8806,
         "peak_rss_mb": 413,
     },
+    # normal flow on the cat (Fig. 12a): shared/notes/reference.md §4, measured while another job shared the
+    # cores (so an idle reference is faster); no peak memory recorded
+    "flow_cat": {
+        "verts": 7449,
+        "wall": 80.9,
+        "newton_iterations": 83,
+        "volume_ratio": 0.06319 / 0.02335,
+    },
 }
 
 PAPER: dict[str, dict[str, Any]] = {

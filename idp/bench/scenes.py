@@ -113,4 +113,7 @@ def suite(data: Path) -> dict:
         "hourglass_bunny": (lambda: hourglass(data, "bunny"), "full"),
         "hourglass_octocat": (lambda: hourglass(data, "octocat"), "full"),
         "bar_twist": (lambda: paper_scene("fig10_bar_elastic.toml"), "full"),
+        "flow_cat": (lambda: paper_scene("fig12_cat.toml"), "full"),
+        "flow_bunny3K_inward": (lambda: paper_scene("fig13_bunny3K.toml"), "full"),
+        "flow_font_Tao": (lambda: paper_scene("fig14_font_Tao.toml"), "full"),
     }

@@ -92,6 +92,7 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         "contacts_per_step": [r["contacts"] for r in recs],
         "fill_per_step": [r["fill_fraction"] for r in recs],
         "fill_final": res.summary["fill_fraction"],
+        "volume_ratio": (res.summary.get("flow") or {}).get("volume_ratio"),
         "certified_frames": sum(
             1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]
         ),
@@ -110,7 +111,7 @@ def write_table(results: list[dict], out: Path, machine: dict | None = None) -> 
     """results.md: the machine (header), the per-scene table, the per-iteration split; returns the text."""
     rows = [
         "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) "
-        "| s / it (ref) | fill (ref) | peak RSS MB (ref) | certified |",
+        "| s / it (ref) | fill or volume (ref) | peak RSS MB (ref) | certified |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
@@ -120,7 +121,10 @@ def write_table(results: list[dict], out: Path, machine: dict | None = None) -> 
         speed = f"{rw / wall:.2f}×" if rw else "–"
         ref_spi = f"{rw / ref['newton_iterations']:.3f}" if rw else "–"
         fill = f"{100 * r['fill_final']:.2f} %" if r["fill_final"] is not None else "–"
-        rfill = f"{100 * ref['fill']:.2f} %" if ref else "–"
+        rfill = f"{100 * ref['fill']:.2f} %" if ref.get("fill") is not None else "–"
+        if r.get("volume_ratio") is not None:  # flows: enclosed-volume growth instead of a fill fraction
+            fill = f"vol ×{r['volume_ratio']:.3f}"
+            rfill = f"×{ref['volume_ratio']:.3f}" if ref.get("volume_ratio") else "–"
         rows.append(
             f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} "
             f"| {speed} | {r['newton_iterations']} ({ref.get('newton_iterations', '–')}) "
