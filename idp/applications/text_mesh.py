@@ -309,7 +309,7 @@ def _clean_region(region: BaseGeometry, edge: float, tol: float) -> list[Any]:
     region = region.buffer(r, join_style="mitre", mitre_limit=10.0).buffer(-r, join_style="mitre", mitre_limit=10.0)
     region = shapely.simplify(region, tol, preserve_topology=True)
     min_area = (SLIVER_FRACTION * edge) ** 2
-    polys = []
+    polys: list = []
     for p in shapely.get_parts(region):
         if not isinstance(p, Polygon) or p.area < min_area:
             continue

@@ -299,7 +299,7 @@ class ContactModel:
             verts = np.asarray(cs.verts[near], dtype=np.int64)
             sqd = np.asarray(cs.sqdist[near], dtype=float)
         else:
-            coll = ev.collisions
+            coll = cast("ipctk.NormalCollisions", ev.collisions)  # not compiled: ipctk built the collisions
             E, F = self.mesh.edges, self.mesh.faces
             rows, dists = [], []
             for i in range(len(coll)):

@@ -219,7 +219,7 @@ def ellipsoid_surface(
     for _ in range(int(subdivisions)):
         v, f = _subdivide_on_sphere(v, f)
     if noise > 0:
-        r = np.random.default_rng(seed).uniform(-noise, noise, v.shape[0])
+        r = np.asarray(np.random.default_rng(seed).uniform(-noise, noise, v.shape[0]), dtype=float)
         if smoothing:
             e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
             deg = np.bincount(e[:, 0], minlength=v.shape[0]).astype(float)

@@ -128,7 +128,7 @@ def build_scene(
     ``with_handles``: set up the Dirichlet machinery even when the scene has no handles (for targets streamed
     from code, :attr:`idp.stepper.handles.HandleSet.stream`)."""
     dim = scene.dim
-    deformables: list[tuple[int, Any, VolumeMesh, np.ndarray]] = []
+    deformables: list[tuple[int, Any, Any, np.ndarray]] = []  # VolumeMesh, or SurfaceMesh for shells
     obstacles: list[tuple[int, Any, SurfaceMesh, np.ndarray]] = []
     for i, obj in enumerate(scene.objects):
         try:
