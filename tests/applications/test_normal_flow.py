@@ -192,3 +192,29 @@ def test_elastic_shell_pushed_by_a_handle_stays_injective(tmp_path):
     assert np.allclose(res.x[top, 1] - x0[top, 1], -0.06 * 4 * 0.1, atol=2e-3)  # 4 steps of √h = 0.1 s
     assert res.summary["steps_with_unmet_targets"] == 0
     assert enclosed_volume(res.x, ellipsoid_surface(radii=(0.2,) * 3, subdivisions=2).faces) > 0
+
+
+@pytest.mark.parametrize("other", ["volume", "obstacle"])
+def test_shell_flows_into_a_volume_or_an_obstacle_without_crossing(tmp_path, other):
+    """Shell–volume contact (a skin shrinking onto a tet ball) and shell–obstacle contact (a skin inflating in a
+    box), certified at every iterate."""
+    if other == "volume":
+        objects = [
+            _sphere("skin", (0, 0, 0), radius=0.15),
+            {"name": "core", "generate": {"shape": "ball", "radius": 0.1, "resolution": 2}},
+        ]
+        beta = -0.02
+    else:
+        box = {"shape": "box_surface", "lo": [-0.33] * 3, "hi": [0.33] * 3}
+        objects = [_sphere("skin", (0, 0, 0), radius=0.3), {"name": "box", "kind": "obstacle", "generate": box}]
+        beta = 0.02
+    res = simulate(scene_from_dict(_flow_doc(objects, beta=beta, steps=3)), tmp_path, progress=False)
+    stats = _stats(tmp_path)
+    assert _all_certified(stats) and res.summary["all_certified"]
+    assert max(s["contacts"] for s in stats["steps"][1:]) > 0  # they did meet
+    skin = res.x[: res.parts[0].vertex_ids.size]
+    ratio = stats["steps"][-1]["flow"]["volume_ratio"]
+    if other == "volume":
+        assert ratio < 1.0  # the skin shrank (onto the ball, which stopped it: contacts above)
+    else:
+        assert ratio > 1.0 and np.abs(skin).max() < 0.33  # grew, and stayed inside the box
