@@ -40,7 +40,8 @@ def make_ccd(name: str):
 
 
 BARRIERS = ("compiled", "ipctk")
-NEAR_CONTACT = 1e-4  # gaps below NEAR_CONTACT·d̂: additive CCD plus the pairwise Lipschitz bound
+NEAR_CONTACT = 1e-4  # gaps below NEAR_CONTACT·d̂: additive CCD plus conservative advancement of those pairs
+NEAR_KEEP = 0.1  # ... each keeping 10 % of its gap (the reference keeps 10 % of every gap)
 
 
 @dataclass
@@ -276,7 +277,7 @@ class ContactModel:
 
             fv, ee = candidates if candidates is not None else self._candidates(v0, v1)
             pairs, is_pt = near_pairs(v0, self._edges, self._faces, fv, ee, NEAR_CONTACT * self.dhat)
-            alpha = conservative_step(v0, v1, pairs, is_pt, alpha_max=alpha)
+            alpha = conservative_step(v0, v1, pairs, is_pt, alpha_max=alpha, keep=NEAR_KEEP)
         elif near_contact:
             alpha = min(alpha, self._near_pair_step_bound(v0, v1, ev if ev is not None else self.evaluate(x0)))
         return alpha
