@@ -41,8 +41,7 @@ def _cmd_run(args) -> int:
         resume=args.resume,
         check_every_iterate=True if args.check_iterates else None,
     )
-    _print_summary(result, Path(out))
-    return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
+    return _finish(result, Path(out))
 
 
 def _cmd_flow(args) -> int:
@@ -65,8 +64,7 @@ def _cmd_flow(args) -> int:
         output_dir=out,
     )
     result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
-    _print_summary(result, out)
-    return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
+    return _finish(result, out)
 
 
 def _cmd_font(args) -> int:
@@ -87,6 +85,11 @@ def _cmd_font(args) -> int:
         dhat=args.dhat,
     )
     result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
+    return _finish(result, out)
+
+
+def _finish(result, out: Path) -> int:
+    """Print the run's summary; exit code 0 when every frame is certified."""
     _print_summary(result, out)
     return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
 
@@ -152,8 +155,7 @@ def _cmd_demo(args) -> int:
     scene = load_scene(demo_scene_path())
     out = Path(args.output)
     result = simulate(scene, out, steps=args.steps, progress=not args.quiet)
-    _print_summary(result, out)
-    return 0 if result.summary["all_certified"] else EXIT_CERTIFICATE
+    return _finish(result, out)
 
 
 def _cmd_bench(args) -> int:
