@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from idp.scene.schema import Scene
-from idp.scene.shell_schema import FLOW_TOL_FRACTION
 
 DEFAULT_DHAT = 1e-3  # the authors' absolute d̂ for every flow (manifest, flow/)
 
@@ -36,14 +35,12 @@ def flow_scene(
     """A validated normal-flow scene for the triangle surface ``mesh`` (a file path, or ``data:flow/cat.obj``).
 
     ``beta`` is the per-step push (time.h = 1), ``gamma`` the smoothing; ``newton_tol`` (RMS of the Newton step
-    per vertex) defaults to 5 % of |β|
-    (Newton stops when no vertex would move further than that)."""
-    tol = newton_tol if newton_tol is not None else FLOW_TOL_FRACTION * abs(beta)
+    per vertex) defaults to the flow scenes' ``FLOW_TOL_FRACTION`` · |β| (set by the scene schema)."""
     doc: dict[str, Any] = {
         "name": name or Path(str(mesh)).stem,
         "dim": 3,
         "time": {"h": 1.0, "steps": int(steps)},
-        "solver": {"newton_tol": float(tol), "newton_norm": "rms"},
+        "solver": {} if newton_tol is None else {"newton_tol": float(newton_tol)},
         "contact": {"dhat": float(dhat), "preserve_input_intersections": bool(preserve_input_intersections)},
         "flow": {
             "beta": float(beta),
