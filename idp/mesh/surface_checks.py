@@ -21,6 +21,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from idp.errors import MeshError
+from idp.mesh.differential import face_area_normals
 from idp.mesh.surface import _count_components, _directed_edges, _unique_rows
 
 log = logging.getLogger("idp")
@@ -69,12 +70,6 @@ def _group_members(inverse: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray,
     return order, starts
 
 
-def _face_area2(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) twice the triangle areas."""
-    a, b, c = x[faces[:, 0]], x[faces[:, 1]], x[faces[:, 2]]
-    return np.linalg.norm(np.cross(b - a, c - a), axis=1)
-
-
 def degenerate_triangles(x: np.ndarray, faces: np.ndarray, rel_tol: float = 1e-10) -> np.ndarray:
     """Sorted ids of the triangles with area ≤ rel_tol · (longest edge)², non-finite ones included.
 
@@ -92,7 +87,7 @@ def degenerate_triangles(x: np.ndarray, faces: np.ndarray, rel_tol: float = 1e-1
         return np.zeros(0, dtype=np.int64)
     p = X[F]
     longest2 = np.max(np.sum((p - np.roll(p, -1, axis=1)) ** 2, axis=2), axis=1)
-    area = 0.5 * _face_area2(X, F)
+    area = np.linalg.norm(face_area_normals(X, F), axis=1)
     return np.flatnonzero(~(area > rel_tol * longest2))
 
 
@@ -202,7 +197,7 @@ def check_shell_surface(
         )
 
     edge_len = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
-    area = 0.5 * _face_area2(X, F)
+    area = np.linalg.norm(face_area_normals(X, F), axis=1)
     zero = np.flatnonzero(area <= area_tol * float(edge_len.mean()) ** 2)
     if zero.size:
         problems.append(f"{zero.size} zero-area faces (no normal): faces {_ids(zero)}")

@@ -18,7 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from idp.mesh.differential import LaplacianSmoothing, NormalForce, vertex_areas, vertex_normals
+from idp.mesh.differential import (
+    LaplacianSmoothing,
+    NormalForce,
+    face_area_normals,
+    vertex_areas,
+    vertex_normals,
+)
 from idp.mesh.surface import enclosed_volume
 
 
@@ -58,8 +64,7 @@ class NormalFlow:
         self.initial_area = self._area(x)
 
     def _area(self, x: np.ndarray) -> float:
-        t = x[self.faces]
-        return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
+        return float(np.linalg.norm(face_area_normals(x, self.faces), axis=1).sum())
 
     def _volume(self, x: np.ndarray) -> float | None:
         return float(enclosed_volume(x, self.faces)) if self.closed else None
