@@ -121,7 +121,7 @@ def near_pairs(
     is_pt = np.concatenate([np.ones(pt.shape[0], bool), np.zeros(eeids.shape[0], bool)])
     if pairs.shape[0] == 0:
         return pairs, is_pt
-    d = _distances(np.ascontiguousarray(V, dtype=float), pairs, is_pt)
+    d = pair_distances(V, pairs, is_pt)
     keep = d < max_distance
     return pairs[keep], is_pt[keep]
 
@@ -137,19 +137,16 @@ def _distances_kernel(V, pairs, is_pt, out):  # pragma: no cover - compiled
         out[i] = _pair_distance(X, S, is_pt[i])
 
 
-def _distances(V: np.ndarray, pairs: np.ndarray, is_pt: np.ndarray) -> np.ndarray:
-    out = np.empty(pairs.shape[0])
-    _distances_kernel(V, pairs, is_pt, out)
-    return out
-
-
 def pair_distances(V: np.ndarray, pairs: np.ndarray, is_point_triangle: np.ndarray) -> np.ndarray:
     """Exact distance of each pair (rows of 4 vertex ids; point–triangle or edge–edge) at V."""
-    return _distances(
+    out = np.empty(pairs.shape[0])
+    _distances_kernel(
         np.ascontiguousarray(V, dtype=float),
         np.ascontiguousarray(pairs, dtype=np.int64),
         np.ascontiguousarray(is_point_triangle, dtype=bool),
+        out,
     )
+    return out
 
 
 def conservative_step(
