@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from finite_differences import fd_gradient, fd_hessian
 
 from idp.energies.bending import BendingEnergy, bending_stiffness, dihedral_angles
 from idp.energies.term import ElementTerm
 from idp.mesh.generate import tri_rectangle
 from idp.mesh.hinges import triangle_hinges
-
-EPS = 1e-6
 
 
 def _hinge(phi: float) -> np.ndarray:
@@ -36,24 +35,6 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     q = q * np.sign(np.diag(r))
     return q if np.linalg.det(q) > 0 else -q
-
-
-def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
-    g = np.zeros(x.size)
-    for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        g[i] = (f(x + d.reshape(x.shape)) - f(x - d.reshape(x.shape))) / (2 * EPS)
-    return g
-
-
-def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
-    H = np.zeros((x.size, x.size))
-    for i in range(x.size):
-        d = np.zeros(x.size)
-        d[i] = EPS
-        H[:, i] = (grad(x + d.reshape(x.shape)) - grad(x - d.reshape(x.shape))) / (2 * EPS)
-    return H
 
 
 def _assemble(term, blocks: np.ndarray, n: int) -> np.ndarray:
@@ -141,10 +122,10 @@ def test_gradient_and_hessian_match_finite_differences(name: str) -> None:
     X, H, x = _cases()[name]
     E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
     g = E.gradient(x)
-    gf = _fd_gradient(E.value, x)
+    gf = fd_gradient(E.value, x)
     assert np.linalg.norm(g - gf) <= 1e-6 * np.linalg.norm(g)
     Hx = _assemble(E, E.element_hessians(x, project=False), len(X))
-    Hf = _fd_hessian(E.gradient, x)
+    Hf = fd_hessian(E.gradient, x)
     assert np.abs(Hx - Hx.T).max() <= 1e-12 * np.abs(Hx).max()
     assert np.linalg.norm(Hx - Hf) <= 1e-5 * np.linalg.norm(Hx)
 

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from finite_differences import fd_gradient, fd_hessian
 
 from idp.energies.membrane import MembraneEnergy, membrane_lame
 from idp.energies.term import ElementTerm
 from idp.mesh.generate import tri_rectangle
-
-EPS = 1e-6
 
 
 def _sheet(res: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -33,26 +32,6 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     q = q * np.sign(np.diag(r))
     return q if np.linalg.det(q) > 0 else -q
-
-
-def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
-    g = np.zeros(x.size)
-    for i in range(x.size):
-        e = np.zeros(x.size)
-        e[i] = EPS
-        d = e.reshape(x.shape)
-        g[i] = (f(x + d) - f(x - d)) / (2 * EPS)
-    return g
-
-
-def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
-    H = np.zeros((x.size, x.size))
-    for i in range(x.size):
-        e = np.zeros(x.size)
-        e[i] = EPS
-        d = e.reshape(x.shape)
-        H[:, i] = (grad(x + d) - grad(x - d)) / (2 * EPS)
-    return H
 
 
 def _assemble(term, blocks: np.ndarray, n: int) -> np.ndarray:
@@ -81,10 +60,10 @@ def test_gradient_and_hessian_match_finite_differences(name: str) -> None:
     E = MembraneEnergy(X, T, youngs_modulus=rng.uniform(1.0, 3.0, len(T)), poisson_ratio=0.3, thickness=0.1)
     x = _configurations(X, rng)[name]
     g = E.gradient(x)
-    gf = _fd_gradient(E.value, x)
+    gf = fd_gradient(E.value, x)
     assert np.linalg.norm(g - gf) <= 1e-6 * max(float(np.linalg.norm(g)), 1e-8)
     H = _assemble(E, E.element_hessians(x, project=False), X.shape[0])
-    Hf = _fd_hessian(E.gradient, x)
+    Hf = fd_hessian(E.gradient, x)
     assert np.abs(H - H.T).max() <= 1e-12 * np.abs(H).max()
     assert np.linalg.norm(H - Hf) <= 1e-5 * np.linalg.norm(H)
 

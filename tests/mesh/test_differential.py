@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from finite_differences import fd_gradient, fd_hessian
 
 from idp.energies.term import ElementTerm
 from idp.mesh.differential import (
@@ -142,29 +143,6 @@ def test_laplacian_smoothing_hessian_is_minus_gamma_L(jitter: float, weights: st
     assert S.value(X + np.array([1.0, -2.0, 3.0])) == pytest.approx(S.value(X), rel=1e-12)
 
 
-EPS = 1e-6
-
-
-def _fd_gradient(f, x: np.ndarray) -> np.ndarray:
-    g = np.zeros(x.size)
-    for i in range(x.size):
-        step = np.zeros(x.size)
-        step[i] = EPS
-        d = step.reshape(x.shape)
-        g[i] = (f(x + d) - f(x - d)) / (2 * EPS)
-    return g
-
-
-def _fd_hessian(grad, x: np.ndarray) -> np.ndarray:
-    H = np.zeros((x.size, x.size))
-    for i in range(x.size):
-        step = np.zeros(x.size)
-        step[i] = EPS
-        d = step.reshape(x.shape)
-        H[:, i] = (grad(x + d) - grad(x - d)) / (2 * EPS)
-    return H
-
-
 @pytest.mark.parametrize("weights", ["cotangent", "area"])
 def test_laplacian_smoothing_matches_finite_differences(weights: str) -> None:
     rng = np.random.default_rng(5)
@@ -173,12 +151,12 @@ def test_laplacian_smoothing_matches_finite_differences(weights: str) -> None:
     S = LaplacianSmoothing(X, T, 1.7, weights=weights)
     x = X + 0.2 * rng.normal(size=X.shape)
     g = S.gradient(x)
-    gf = _fd_gradient(S.value, x)
+    gf = fd_gradient(S.value, x)
     assert np.linalg.norm(g - gf) <= 1e-7 * np.linalg.norm(g)
     H = np.zeros((x.size, x.size))
     for dofs, b in zip(S.element_dofs(), S.element_hessians(x, project=False), strict=True):
         H[np.ix_(dofs, dofs)] += b
-    Hf = _fd_hessian(S.gradient, x)
+    Hf = fd_hessian(S.gradient, x)
     assert np.linalg.norm(H - Hf) <= 1e-7 * np.linalg.norm(H)
     # the weights come from the construction shape and are not updated by moving x
     np.testing.assert_allclose(S.element_hessians(2.0 * x, project=False), S.element_hessians(x, project=False))
