@@ -105,6 +105,8 @@ class ContactModel:
         self._potential_cache: tuple[float, object] | None = None
         self.bbox_diagonal = float(ipctk.world_bbox_diagonal_length(self.surface_positions(positions)))
         self.compiled = barrier == "compiled" and self.dim == 3
+        self._excluded_fv = np.zeros(0, dtype=np.int64)  # touching input pairs left out (exclude_touching)
+        self._excluded_ee = np.zeros(0, dtype=np.int64)
         self.num_dynamic_collision_vertices = n_dyn_cm
         if self.compiled:
             from idp.contact import compiled_barrier
@@ -120,6 +122,76 @@ class ContactModel:
                 if len(self._edges)
                 else np.zeros(0)
             )
+
+    # -- preserved touching pairs ------------------------------------------------
+    def exclude_touching(self, x: np.ndarray, tolerance: float) -> list[tuple[list[int], list[int]]]:
+        """Leave out of the barrier and CCD every surface pair closer than ``tolerance`` at ``x``; returns them as
+        (vertices of one primitive, vertices of the other) in full-mesh ids (a vertex vs a triangle or an edge, or
+        an edge vs an edge).
+
+        Only for preserved input crossings (paper §5.5): an artist's crossing can hold primitives that touch
+        exactly (the mannequin's rest pose has two edge pairs at distance 0 inside its crossings), where the
+        barrier is infinite and CCD allows no motion. Those pairs belong to the crossing, which is kept anyway;
+        every other pair, including every other pair of the same primitives' neighbours, stays guarded. CCD
+        leaves them out through a vertex-pair filter on the collision mesh (a pair is skipped only when all
+        its cross vertex pairs are filtered), the compiled barrier by dropping their candidates."""
+        vs = self.surface_positions(x)
+        if self.compiled:
+            fv, ee = self._candidates(vs, None)
+        else:
+            fv = ee = None
+        tol2 = float(tolerance) ** 2
+        pairs: list[tuple[list[int], list[int]]] = []  # (one side's vertices, the other side's), collision ids
+        if fv is not None and ee is not None:
+            n = fv.shape[0] + ee.shape[0]
+            ctype, sqd, eps = np.empty(n, np.int64), np.empty(n), np.empty(n)
+            self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
+            touch = np.flatnonzero(sqd <= tol2)
+            nf = fv.shape[0]
+            fv_touch, ee_touch = touch[touch < nf], touch[touch >= nf] - nf
+            self._excluded_fv = np.unique(fv[fv_touch, 0].astype(np.int64) * vs.shape[0] + fv[fv_touch, 1])
+            self._excluded_ee = np.unique(ee[ee_touch, 0].astype(np.int64) * len(self._edges) + ee[ee_touch, 1])
+            for f, v in fv[fv_touch]:
+                pairs.append(([int(v)], [int(i) for i in self._faces[f]]))
+            for a, b in ee[ee_touch]:
+                pairs.append(([int(i) for i in self._edges[a]], [int(i) for i in self._edges[b]]))
+        else:
+            c = ipctk.NormalCollisions()
+            c.build(self.mesh, vs, float(tolerance) + 1e-300, 0.0, self.broad_phase())
+            E, F = self.mesh.edges, self.mesh.faces
+            for i in range(len(c)):
+                ids = [int(j) for j in c[i].vertex_ids(E, F) if j >= 0]
+                if float(c[i].compute_distance(c[i].dof(vs, E, F))) <= tol2:
+                    split = 2 if "EdgeEdge" in type(c[i]).__name__ else 1  # edge–edge, else a vertex vs the rest
+                    pairs.append((ids[:split], ids[split:]))
+        if not pairs:
+            return []
+        if self.num_dynamic_collision_vertices < vs.shape[0]:
+            from idp.errors import SceneError
+
+            raise SceneError(
+                f"{len(pairs)} surface pair(s) of the preserved input touch exactly; leaving them out is not supported "
+                "with static obstacles in the scene yet"
+            )
+        explicit = {}
+        for side_a, side_b in pairs:
+            for i in side_a:
+                for j in side_b:
+                    if i != j:
+                        explicit[(min(i, j), max(i, j))] = False
+        self.mesh.can_collide = ipctk.make_sparse_filter(explicit, True)
+        full = self.to_full
+        return [([int(full[i]) for i in a], [int(full[i]) for i in b]) for a, b in pairs]
+
+    def _filter_excluded(self, fv: np.ndarray, ee: np.ndarray, nv: int) -> tuple[np.ndarray, np.ndarray]:
+        """Candidates without the excluded touching pairs (:meth:`exclude_touching`)."""
+        if self._excluded_fv.size and fv.size:
+            keep = ~np.isin(fv[:, 0].astype(np.int64) * nv + fv[:, 1], self._excluded_fv, assume_unique=False)
+            fv = fv[keep]
+        if self._excluded_ee.size and ee.size:
+            keep = ~np.isin(ee[:, 0].astype(np.int64) * len(self._edges) + ee[:, 1], self._excluded_ee)
+            ee = ee[keep]
+        return fv, ee
 
     # -- geometry -------------------------------------------------------------
     def broad_phase(self):
@@ -150,9 +222,12 @@ class ContactModel:
         return ContactEvaluation(c, vs, len(c))
 
     def _candidates(self, v0: np.ndarray, v1: np.ndarray | None):
-        return self._surface_candidates(
+        fv, ee = self._surface_candidates(
             v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices
         )
+        if self._excluded_fv.size or self._excluded_ee.size:
+            fv, ee = self._filter_excluded(fv, ee, v0.shape[0])
+        return fv, ee
 
     def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes

@@ -29,6 +29,11 @@ class StepConstraint(Protocol):
         """Start of a step: returns the (possibly moved) start iterate."""
         ...
 
+    def accept(self, x: np.ndarray) -> None:
+        """The step ended at ``x`` without Newton iterations (its inertia target was the exact minimiser, see
+        :meth:`idp.solver.newton.StepSolver.solve`): record whether the targets are met there."""
+        ...
+
     def held_dofs(self) -> np.ndarray:
         """(n·d,) bool: DOFs held at their current value during the rest of the step."""
         ...

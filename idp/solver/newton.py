@@ -64,6 +64,7 @@ class NewtonResult:
     elastic_energy: float = 0.0
     barrier_energy: float = 0.0
     min_distance: float = float("inf")
+    exact: bool = False  # the step's minimiser was its inertia target, taken without iterations (see solve)
     # seconds: assembly (gradient, elastic + barrier Hessians, pattern), linear_solve (orderings,
     # factorisations, solves, CG), ccd (continuous collision detection), line_search (inversion filter and
     # trial energies), contact_build (broad phase and collision sets, also those of the line search),
@@ -285,20 +286,36 @@ class StepSolver:
         return self._direction(H, g, res)
 
     # -- main loop -------------------------------------------------------------------------
-    def solve(self, x_prev: np.ndarray) -> tuple[np.ndarray, NewtonResult]:
-        """Minimise the step energy S(x) starting from ``x_prev`` = x_t.
+    def solve(
+        self, x_prev: np.ndarray, *, start: np.ndarray | None = None, target_at_rest: bool = False
+    ) -> tuple[np.ndarray, NewtonResult]:
+        """Minimise the step energy S(x) = ½‖x − x_prev‖²_M + h·E(x) + B(x), iterating from ``start`` (a certified
+        state; default ``x_prev``). The inertia target ``x_prev`` = x_t is the previous step's state in the
+        artificial time stepping, or another state a driver asks for (animation repair: the input frame).
+
+        ``target_at_rest``: the caller states that every elastic term is at its rest state at ``x_prev`` (repair
+        makes the input frame the rest shape). Then, if the straight move from ``start`` to ``x_prev`` is
+        collision- and inversion-free and no contact pair is within d̂ there, S(x_prev) is S's lower bound 0 and
+        ``x_prev`` itself, bit for bit, is the minimiser: it is returned with 0 Newton iterations
+        (:attr:`NewtonResult.exact`). Otherwise Newton runs as usual.
 
         With a step constraint (``system.step_constraint``, §4.3) the first iterate is its feasible move of the
         bound vertices, its penalty joins S while it is on, its held DOFs do not move, and the loop stops only
         once it is settled (see :mod:`idp.solver.constraint`)."""
         s, cfg = self.system, self.settings
         res = NewtonResult()
-        x = x_prev.copy()
+        x = (x_prev if start is None else start).copy()
         n, d = x.shape
         free = s.dof_map.free_dofs
         sqrt_h = math.sqrt(s.h)
         c = self._constraint = s.step_constraint
         self._held = None
+        if target_at_rest and self._target_is_minimiser(x, x_prev, res):
+            if c is not None:
+                c.accept(x_prev)
+            res.converged, res.exact, res.decrement = True, True, 0.0
+            res.min_distance = s.contact.min_distance(s.contact.evaluate(x_prev)) if s.contact is not None else math.inf
+            return x_prev.copy(), res
 
         def feasible(x_: np.ndarray, P_: np.ndarray) -> float:  # the constraint's moves, timed with the step's
             return self.feasible_step(x_, P_, res)
@@ -384,6 +401,19 @@ class StepSolver:
             res.kappa = s.contact.kappa
             res.min_distance = s.contact.min_distance(ev)
         return x, res
+
+    def _target_is_minimiser(self, x: np.ndarray, target: np.ndarray, res: NewtonResult) -> bool:
+        """Whether the inertia target (elastic terms at rest there) is reachable from ``x`` by a feasible straight
+        move, moves no pinned DOF and has no contact pair within d̂ (so the barrier is 0 there)."""
+        s = self.system
+        P = target - x
+        if np.any(P.ravel()[~s.dof_map.free_mask] != 0.0):
+            return False
+        if s.contact is not None:
+            ev = self._contact_eval(target, res)
+            if ev.num_active > 0:
+                return False
+        return not np.any(P) or self.feasible_step(x, P, res) >= 1.0
 
     def _update_held(self, c, free: np.ndarray) -> None:
         held = c.held_dofs()[free]

@@ -143,6 +143,11 @@ class DirichletTargets:
         self._penalty_on = bool(self._dof.any())
         return x
 
+    def accept(self, x: np.ndarray) -> None:
+        self._reset()
+        self._met = bool(self.distances(x).max(initial=0.0) <= self.tolerance)
+        self._blocked = not self._met
+
     def _hold(self, met: bool = True) -> None:
         """Hold the bound DOFs where they are and drop the penalty (on target, or frozen when stalled)."""
         self._met = met

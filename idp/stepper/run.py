@@ -126,19 +126,24 @@ def run_simulation(
     out_dir: str | Path,
     settings: RunSettings,
     meta: dict | None = None,
+    writer=None,
 ) -> RunResult:
-    """Run ``settings.steps`` artificial time steps from ``system.x``; write everything to ``out_dir``."""
+    """Run ``settings.steps`` artificial time steps from ``system.x``; write everything to ``out_dir``.
+
+    ``writer``: where frames go (``write(step, x, time=..., cell_data=...)``, ``close()``); default the OBJ/VTU/PVD
+    :class:`~idp.output.frames.FrameWriter` under ``out_dir`` (animation repair writes the input's own form)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
-    writer = FrameWriter(
-        out,
-        system.parts,
-        system.dim,
-        write_obj=settings.write_obj,
-        write_vtu=settings.write_vtu,
-        fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1),
-    )
+    if writer is None:
+        writer = FrameWriter(
+            out,
+            system.parts,
+            system.dim,
+            write_obj=settings.write_obj,
+            write_vtu=settings.write_vtu,
+            fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1),
+        )
     checkpoint = out / "checkpoint.npz"
     earlier = _previous_records(out / "stats.json") if settings.resume and checkpoint.exists() else []
     stats = StatsRecorder(out / "stats.json", meta)
@@ -195,7 +200,10 @@ def run_simulation(
             system.set_rest_shape_for_step(step)
             for cond in system.conditions:
                 cond.before_step(system, step, x)
-            x_new, res = solver.solve(x)
+            if system.inertia_target is None:
+                x_new, res = solver.solve(x)
+            else:
+                x_new, res = solver.solve(system.inertia_target, start=x, target_at_rest=system.target_at_rest)
             t_cert = time.perf_counter()
             cert = certifier.check(x_new)
             t_cert = time.perf_counter() - t_cert
@@ -213,6 +221,7 @@ def run_simulation(
                 "wall_time": step_time,
                 "newton_iterations": res.iterations,
                 "converged": res.converged,
+                "exact_minimiser": res.exact,
                 "hit_iteration_cap": res.hit_iteration_cap,
                 "line_search_failed": res.line_search_failed,
                 "newton_decrement": res.decrement,

@@ -61,6 +61,10 @@ class System:
     step_constraint: StepConstraint | None = None
     conditions: list = field(default_factory=list)
     linear_terms: list = field(default_factory=list)  # value(x)/gradient(x) only, e.g. −β xᵀN (no Hessian)
+    # set by a condition for the step about to be solved: the inertia target x̃ of ½‖x − x̃‖²_M when it is not
+    # the previous state (animation repair: the input frame), and whether every elastic term is at rest there
+    inertia_target: np.ndarray | None = None
+    target_at_rest: bool = False
 
     def __post_init__(self) -> None:
         self.dof_map = FreeDofMap(self.free_mask)
