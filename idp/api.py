@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from idp.scene.build import build_scene
+from idp.scene.build import BuiltScene, build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
 from idp.scene.schema import Scene
 from idp.solver.linear import make_linear_solver
@@ -44,14 +44,22 @@ def simulate(
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
     # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
     built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
-    out.mkdir(parents=True, exist_ok=True)
-    resolved = resolved_scene_dict(scene)
-    (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
-    (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
     if targets is not None:
         from idp.stepper.handles import HandleSet
 
         next(c for c in built.system.conditions if isinstance(c, HandleSet)).stream = targets
+    return run_built(scene, built, out, progress=progress, resume=resume)
+
+
+def run_built(
+    scene: Scene, built: BuiltScene, out: Path, *, progress: bool = True, resume: bool = False, writer=None
+) -> RunResult:
+    """Run a built scene into ``out`` (scene files, frames, stats, checkpoint): the one path every driver takes.
+    ``writer``: the frame writer when not the default OBJ/VTU/PVD one (animation repair's sequence writer)."""
+    out.mkdir(parents=True, exist_ok=True)
+    resolved = resolved_scene_dict(scene)
+    (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
+    (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
     built.run.progress = progress
     built.run.resume = resume
     dofs_per_node = scene.dim
@@ -71,4 +79,4 @@ def simulate(
         built.meta["num_vertices"],
         built.meta["num_elements"],
     )
-    return run_simulation(built.system, built.newton, linear, built.certifier, out, built.run, meta)
+    return run_simulation(built.system, built.newton, linear, built.certifier, out, built.run, meta, writer=writer)

@@ -1,4 +1,4 @@
-"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp check``, ``idp demo``, ``idp bench``."""
+"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp check``, ``idp demo``, ``idp bench``."""
 
 from __future__ import annotations
 
@@ -33,6 +33,10 @@ def _cmd_run(args) -> int:
 
     scene = load_scene(args.scene)
     out = args.output or scene.output.dir
+    if scene.repair is not None:
+        from idp.applications.repair import run_repair
+
+        return _finish(run_repair(scene, out, progress=not args.quiet, resume=args.resume), Path(out))
     result = simulate(
         scene,
         out,
@@ -88,6 +92,30 @@ def _cmd_font(args) -> int:
     return _finish(result, out)
 
 
+def _cmd_repair(args) -> int:
+    _set_threads(args.threads)
+    from idp.applications.repair import parse_frames, parse_selection, repair_scene, run_repair
+
+    out = Path(args.output)
+    start, stop = parse_frames(args.frames) if args.frames else (0, None)
+    scene = repair_scene(
+        args.input,
+        dhat=args.dhat,
+        prescribed=[parse_selection(t) for t in args.fixed or []],
+        start=start,
+        stop=stop,
+        first_frame=args.first_frame,
+        output=args.format,
+        usd_prim=args.usd_prim,
+        youngs_modulus=args.youngs_modulus,
+        thickness=args.thickness,
+        bending=args.bending,
+        newton_tol=args.newton_tol,
+    )
+    result = run_repair(scene, out, progress=not args.quiet, resume=args.resume)
+    return _finish(result, out)
+
+
 def _finish(result, out: Path) -> int:
     """Print the run's summary; exit code 0 when every frame is certified."""
     _print_summary(result, out)
@@ -111,6 +139,14 @@ def _print_summary(result, out: Path) -> None:
             f"fill fraction:      {100 * fill:.2f} % of the cage volume"
             f" (start {100 * s['initial_fill_fraction']:.2f} %)",
         )
+    rep = s.get("repair")
+    if rep:
+        lines.insert(
+            0,
+            f"repaired frames:    {rep.get('frames')} ({rep.get('unchanged_frames')} unchanged bit for bit); "
+            f"max deviation {rep.get('max_deviation', 0.0):.4g}, frames still crossing: "
+            f"{rep.get('frames_with_output_crossings')}",
+        )
     flow = s.get("flow")
     if flow:
         what = "enclosed volume" if flow.get("volume") is not None else "area"
@@ -123,7 +159,10 @@ def _print_summary(result, out: Path) -> None:
         lines.append(
             f"handles:            {s['steps_with_unmet_targets']} step(s) ended with targets unmet (stats.json)"
         )
-    lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
+    if s.get("repaired_sequence"):
+        lines.append(f"output:             {s['repaired_sequence']} (report.md, report.json, stats.json in {out}/)")
+    else:
+        lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
     print("\n".join(lines))
 
 
@@ -221,6 +260,37 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--resume", action="store_true")
     t.add_argument("-q", "--quiet", action="store_true")
     t.set_defaults(func=_cmd_font)
+
+    rp = sub.add_parser("repair", help="intersection-free clean-up of an animation sequence (paper §7.3)")
+    rp.add_argument(
+        "input", help="sequence: a folder or glob of OBJ frames, a .pvd VTU series, an .npz (vertices, faces) or USD"
+    )
+    rp.add_argument("-o", "--output", default="out/repair", help="output folder (the sequence, report, stats)")
+    rp.add_argument("--dhat", type=float, default=1e-2, help="contact distance, absolute (the authors': 1e-2)")
+    rp.add_argument(
+        "--fixed",
+        action="append",
+        metavar="SELECTION",
+        help="vertices that follow the input exactly: box:x0,y0,z0,x1,y1,z1 | relbox:... (0..1 of the first "
+        "frame's bounding box) | indices:i,j,k|FILE (repeatable)",
+    )
+    rp.add_argument("--frames", metavar="A:B", help="repair frames A..B-1 (default all)")
+    rp.add_argument(
+        "--first-frame",
+        choices=["error", "preserve"],
+        default="error",
+        help="a first frame that already crosses itself: stop with the pairs named, or keep its crossings",
+    )
+    rp.add_argument("--format", choices=["same", "obj", "pvd", "npz", "usd"], default="same", help="output form")
+    rp.add_argument("--usd-prim", help="the mesh prim of a USD input (default: the first animated mesh)")
+    rp.add_argument("--youngs-modulus", type=float, default=100.0)
+    rp.add_argument("--thickness", type=float, default=0.01)
+    rp.add_argument("--bending", type=float, default=1.0, help="bending multiplier (0: membrane only)")
+    rp.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex / dt to stop at (default 1e-3)")
+    rp.add_argument("--threads", type=int)
+    rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")
+    rp.add_argument("-q", "--quiet", action="store_true")
+    rp.set_defaults(func=_cmd_repair)
 
     c = sub.add_parser("check", help="report counts, closedness, inverted/degenerate elements, self-intersections")
     c.add_argument("meshes", nargs="+")

@@ -44,6 +44,11 @@ GENERATORS: dict[str, Callable[..., VolumeMesh | SurfaceMesh]] = {
 }
 
 
+#: preserve mode: input surface pairs closer than this fraction of the bounding-box diagonal count as touching
+#: (part of a crossing; the barrier cannot be evaluated there) and are left out of the barrier and CCD
+TOUCHING_FRACTION = 1e-9
+
+
 @dataclass
 class BuiltScene:
     system: System
@@ -55,20 +60,36 @@ class BuiltScene:
     meta: dict
 
 
-def _load_object_mesh(obj, dim: int) -> VolumeMesh | SurfaceMesh:
+def _sequence_frame(obj, usd_prim: str | None) -> SurfaceMesh:
+    """Frame ``obj.frame`` of the animation sequence ``obj.mesh`` as a triangle surface."""
+    from idp.mesh.sequence import open_sequence
+
+    seq = open_sequence(obj.mesh, usd_prim=usd_prim)
+    if obj.frame >= seq.num_frames:
+        raise MeshError(f"{obj.mesh}: frame {obj.frame} asked for, the sequence has {seq.num_frames} frames")
+    return SurfaceMesh(seq.frame(obj.frame), seq.faces, source=seq.describe(obj.frame))
+
+
+def _load_object_mesh(obj, dim: int, usd_prim: str | None = None) -> VolumeMesh | SurfaceMesh:
     want = "volume" if obj.kind == "deformable" else "surface"
     if obj.kind == "shell":
         from idp.mesh.surface_checks import check_shell_surface
 
-        mesh = (
-            GENERATORS[obj.generate.shape](**obj.generate.params()) if obj.generate else read_mesh(obj.mesh, kind=want)
-        )
+        mesh: VolumeMesh | SurfaceMesh
+        if obj.frame is not None:
+            mesh = _sequence_frame(obj, usd_prim)
+        elif obj.generate:
+            mesh = GENERATORS[obj.generate.shape](**obj.generate.params())
+        else:
+            mesh = read_mesh(obj.mesh, kind=want)
         if not isinstance(mesh, SurfaceMesh) or mesh.faces.shape[1] != 3:
             raise MeshError(f"{mesh.source}: object {obj.name!r} is a shell but the mesh is not a triangle surface")
         check_shell_surface(mesh.vertices, mesh.faces, mesh.source)
         return mesh
     if obj.generate is not None:
         mesh = GENERATORS[obj.generate.shape](**obj.generate.params())
+    elif obj.frame is not None:
+        mesh = _sequence_frame(obj, None)
     else:
         mesh = read_mesh(obj.mesh, kind=want)
     if want == "volume" and not isinstance(mesh, VolumeMesh):
@@ -132,7 +153,7 @@ def build_scene(
     obstacles: list[tuple[int, Any, SurfaceMesh, np.ndarray]] = []
     for i, obj in enumerate(scene.objects):
         try:
-            mesh = _load_object_mesh(obj, dim)
+            mesh = _load_object_mesh(obj, dim, scene.repair.usd_prim if scene.repair is not None else None)
         except MeshError as exc:
             raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
         verts = _place(obj, mesh.vertices, dim)
@@ -236,7 +257,7 @@ def build_scene(
     dhat = c.dhat * diag if c.dhat_mode == "relative" else c.dhat
 
     preserved: set = set()
-    n_pairs = 0
+    n_pairs = n_touching = 0
     if c.enabled:
         preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
         contact = ContactModel(
@@ -250,6 +271,16 @@ def build_scene(
             adaptive_kappa=c.adaptive_kappa,
             barrier=c.barrier,
         )
+        if c.preserve_input_intersections:
+            touching = contact.exclude_touching(x, TOUCHING_FRACTION * diag)
+            if touching:
+                log.warning(
+                    "preserving %d surface pair(s) that touch exactly inside the input's crossings "
+                    "(left out of the barrier and CCD; the crossings they may turn into are preserved too)",
+                    len(touching),
+                )
+                preserved |= _touching_crossings(touching, all_surface)
+            n_touching = len(touching)
         ev = contact.evaluate(x)
         if ev.num_active and contact.min_distance(ev) <= 0.0:
             raise IntersectingInputError(
@@ -270,8 +301,14 @@ def build_scene(
         "num_surface_primitives": int(all_surface.shape[0]),
         "num_free_dofs": int(free_mask.sum()),
         "input_intersecting_pairs": n_pairs,
+        "input_touching_pairs_left_out": n_touching,
     }
     handles = _build_handles(scene, deformables, kinematic, object_ids, x, pinned, np.sqrt(scene.time.h))
+    repair = _repair_frames(scene, shells, shell_terms, preserved) if scene.repair is not None else None
+    if repair is not None:
+        with_handles = with_handles or repair.prescribed.size > 0
+        meta["repair_frames"] = [repair.frames[0], repair.frames[-1]]
+        meta["prescribed_vertices"] = int(repair.prescribed.size)
     linear_terms: list = []
     flow = _normal_flow(scene, shells, x, shell_terms, linear_terms)
     system = System(
@@ -289,6 +326,8 @@ def build_scene(
         linear_terms=linear_terms,
     )
     system.conditions.extend(material_conditions)
+    if repair is not None:
+        system.conditions.append(repair)  # before the handle set: it streams the prescribed vertices' targets
     if flow is not None:
         system.conditions.append(flow)
     if handles or with_handles:
@@ -305,7 +344,10 @@ def build_scene(
         system.step_constraint = bc
         fixed_deformable = pinned.copy()
         fixed_deformable[num_dynamic:] = False  # obstacle vertices are bound only by their own motion
-        system.conditions.append(HandleSet(handles, bc, float(np.sqrt(scene.time.h)), pinned=fixed_deformable))
+        handle_set = HandleSet(handles, bc, float(np.sqrt(scene.time.h)), pinned=fixed_deformable)
+        if repair is not None and repair.prescribed.size:
+            handle_set.stream = repair.targets
+        system.conditions.append(handle_set)
         meta["handles"] = [h.name for h in handles]
         meta["dirichlet_tolerance"] = tol
     guards_inversion = all(getattr(b.elastic, "guards_inversion", True) for b in energies)
@@ -334,6 +376,8 @@ def build_scene(
         check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,
     )
     o, t = scene.output, scene.time
+    if repair is not None:
+        steps = min(steps, len(repair.frames) - 1) if steps else len(repair.frames) - 1
     run = RunSettings(
         steps=steps or t.steps,
         stop_when_stationary=t.stop_when_stationary,
@@ -346,6 +390,43 @@ def build_scene(
         on_unmet_targets=scene.dirichlet.on_unmet,
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+
+
+def _repair_frames(scene, shells, terms: list[WeightedTerm], preserved: set):
+    """The §7.3 repair condition over the scene's one shell: every frame checked before anything is written."""
+    from idp.mesh.sequence import open_sequence
+    from idp.stepper.repair_frames import RepairFrames
+
+    r = scene.repair
+    seq = open_sequence(r.input, usd_prim=r.usd_prim)
+    stop = seq.num_frames if r.stop is None else min(r.stop, seq.num_frames)
+    if stop - r.start < 2:
+        raise SceneError(
+            f"repair: frames {r.start}:{stop} of {seq.path} ({seq.num_frames} frames) leave fewer than two to repair"
+        )
+    frames = list(range(r.start, stop))
+    for k in frames:  # every frame checked (counts, faces, finite) before anything is written
+        seq.frame(k)
+    _obj, ids, faces = shells[0]
+    first = seq.frame(frames[0])
+    prescribed = np.zeros(first.shape[0], dtype=bool)
+    for j, sel in enumerate(r.prescribed):
+        if sel.indices is not None:
+            idx = np.asarray(sel.indices, dtype=np.int64)
+            if idx.max() >= first.shape[0]:
+                raise SceneError(
+                    f"repair.prescribed[{j}].indices: index {int(idx.max())} out of range ({first.shape[0]} vertices)"
+                )
+        else:
+            rel = (first.min(axis=0), first.max(axis=0)) if sel.relative else None
+            lo, hi = np.asarray(sel.box[0], float), np.asarray(sel.box[1], float)
+            idx = select_in_box(first, lo, hi, relative_to=rel)
+            if idx.size == 0:
+                raise SceneError(f"repair.prescribed[{j}]: the box selects no vertex of frame {frames[0]}")
+        prescribed[idx] = True
+    names = {f"{obj.name}.membrane" for obj, _, _ in shells} | {f"{obj.name}.bending" for obj, _, _ in shells}
+    rest_terms = [wt.term for wt in terms if wt.name in names]
+    return RepairFrames(seq, frames, ids, faces, rest_terms, np.flatnonzero(prescribed), preserved)
 
 
 def _shell_terms(shells, x: np.ndarray, masses: np.ndarray) -> list[WeightedTerm]:
@@ -501,6 +582,36 @@ def _build_handles(scene, deformables, kinematic, object_ids, x, pinned, dt: flo
         handles.append(h)
     check_static_overlaps(handles, scene.time.steps)
     return handles
+
+
+def _touching_crossings(touching: list[tuple[list[int], list[int]]], faces: np.ndarray) -> set:
+    """The edge–triangle crossings that exactly touching input pairs can turn into: an edge through an edge
+    crosses a triangle of the other edge once they move; a vertex on a triangle lets its edges cross that triangle
+    or its neighbours. Their spread beyond is guarded (every other pair keeps its barrier and CCD)."""
+    if faces.shape[1] != 3:
+        return set()
+    from collections import defaultdict
+
+    by_vertex: dict[int, list[int]] = defaultdict(list)
+    for t, tri in enumerate(faces.tolist()):
+        for v in tri:
+            by_vertex[v].append(t)
+
+    def tris_with(*vs: int) -> list[tuple[int, ...]]:
+        common = set(by_vertex[vs[0]]).intersection(*(by_vertex[v] for v in vs[1:]))
+        return [tuple(sorted(faces[t].tolist())) for t in common]
+
+    keys: set = set()
+    for a, b in touching:
+        if len(a) == 2 and len(b) == 2:  # edge–edge
+            keys |= {(tuple(sorted(a)), t) for t in tris_with(*b)}
+            keys |= {(tuple(sorted(b)), t) for t in tris_with(*a)}
+        else:  # a vertex vs a triangle (or an edge)
+            v, other = (a[0], b) if len(a) == 1 else (b[0], a)
+            near = {t for w in other for t in tris_with(w)}
+            edges = {tuple(sorted((v, w))) for t in by_vertex[v] for w in faces[t].tolist() if w != v}
+            keys |= {(e, t) for e in edges for t in near}
+    return keys
 
 
 def _describe_vertex(v: int, parts: list[Part]) -> str:

@@ -89,6 +89,15 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
         raise SceneError(format_validation_error(err, source)) from err
     base = Path(base_dir).absolute() if base_dir is not None else Path.cwd()
     missing = []
+    if scene.repair is not None:
+        r = scene.repair
+        if str(r.input).startswith(DATA_PREFIX):
+            try:
+                r.input = resolve_data_path(str(r.input))
+            except FileNotFoundError as exc:
+                raise SceneError(f"{source}: repair.input: {exc}") from None
+        r.input = _absolute(r.input, base)
+        scene.objects[0].mesh = r.input  # a sequence (a folder or glob too): opened and checked when built
     for i, ob in enumerate(scene.objects):
         if ob.mesh is not None and str(ob.mesh).startswith(DATA_PREFIX):
             try:
@@ -96,9 +105,9 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
             except FileNotFoundError as exc:
                 missing.append(f"{source}: objects[{i}].mesh: {exc}")
                 continue
-        if ob.mesh is not None:
+        if ob.mesh is not None and scene.repair is None:
             ob.mesh = _absolute(ob.mesh, base)
-            if not ob.mesh.is_file():
+            if not ob.mesh.is_file() and not (ob.frame is not None and ob.mesh.is_dir()):
                 missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
         for j, hd in enumerate(ob.handles):
             if hd.motion.file is not None:

@@ -35,6 +35,7 @@ from idp.scene.conditions_schema import (
     SelectionSpec,
     SphereSpec,
 )
+from idp.scene.repair_schema import REPAIR_DHAT, REPAIR_NEWTON_TOL, RepairConfig, RepairSelector
 from idp.scene.schema_base import (
     Bool,
     Float,
@@ -467,6 +468,7 @@ class SceneObject(_Model):
     name: Name
     kind: Literal["deformable", "shell", "obstacle"] = "deformable"
     mesh: Path | None = None
+    frame: NonNegInt | None = None  # `mesh` is an animation sequence (npz, PVD, USD, OBJ folder/glob): this frame
     generate: Generate | None = None
     scale: Scale = 1.0
     rotate: list[Rotation] = Field(default_factory=list)
@@ -600,7 +602,8 @@ class Scene(_Model):
     output: OutputConfig = Field(default_factory=OutputConfig)
     dirichlet: DirichletConfig = Field(default_factory=DirichletConfig)
     flow: FlowConfig | None = None
-    objects: list[SceneObject]
+    repair: RepairConfig | None = None
+    objects: list[SceneObject] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _rules(self) -> Scene:
@@ -611,6 +614,8 @@ class Scene(_Model):
             if v is not None and len(v) != d:
                 probs.append((path, f"must have {d} entries for dim = {d} (got {len(v)})"))
 
+        if self.repair is not None:
+            self._repair_object(probs)
         seen: dict[str, int] = {}
         for i, ob in enumerate(self.objects):
             p = f"objects[{i}]"
@@ -684,6 +689,49 @@ class Scene(_Model):
                 ob.translate = [0.0] * d
         return self
 
+    def _repair_object(self, probs: list[tuple[str, str]]) -> None:
+        """A repair scene's one shell object is its input sequence (made here when ``objects`` is left out), and
+        its contact and stopping rule default to the authors' set-up."""
+        r = self.repair
+        assert r is not None
+        if self.dim != 3:
+            probs.append(("repair", "animation repair works on triangle surfaces in 3D (dim = 3)"))
+        if self.flow is not None:
+            probs.append(("flow", "a scene is either a normal flow or an animation repair, not both"))
+        if not self.objects:
+            self.objects = [
+                SceneObject(
+                    name="surface",
+                    kind="shell",
+                    mesh=r.input,
+                    frame=r.start,
+                    shell=ShellMaterial(
+                        youngs_modulus=100.0, poisson_ratio=0.4, thickness=0.01, bending=1.0, density=1000.0
+                    ),
+                )
+            ]
+        elif len(self.objects) != 1 or self.objects[0].kind != "shell" or self.objects[0].mesh != r.input:
+            probs.append(
+                ("objects", "a repair scene has one shell object whose `mesh` is repair.input (or leave it out)")
+            )
+        else:
+            ob = self.objects[0]
+            if ob.frame not in (None, r.start):
+                probs.append(("objects[0].frame", f"must be repair.start = {r.start} (the first frame repaired)"))
+            ob.frame = r.start
+            if ob.shell is None:
+                ob.shell = ShellMaterial(
+                    youngs_modulus=100.0, poisson_ratio=0.4, thickness=0.01, bending=1.0, density=1000.0
+                )
+        if "dhat" not in self.contact.model_fields_set:
+            self.contact.dhat = REPAIR_DHAT
+        if "newton_tol" not in self.solver.model_fields_set:
+            self.solver.newton_tol = REPAIR_NEWTON_TOL
+        if "newton_norm" not in self.solver.model_fields_set:
+            self.solver.newton_norm = "rms"
+        if r.first_frame == "preserve":
+            self.contact.preserve_input_intersections = True
+
     def object(self, name: str) -> SceneObject:
         """The object called ``name`` (KeyError if none)."""
         for ob in self.objects:
@@ -702,6 +750,8 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     Material,
     ShellMaterial,
     FlowConfig,
+    RepairConfig,
+    RepairSelector,
     RestShape,
     FixedSelector,
     Rotation,
