@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from idp.errors import SceneError
 from idp.scene.build import BuiltScene, build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
 from idp.scene.schema import Scene
@@ -42,6 +43,12 @@ def simulate(
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
+    if scene.repair is not None:  # an animation repair: frames in the input's own form, and its report
+        from idp.applications.repair import run_repair
+
+        if targets is not None or check_every_iterate:
+            raise SceneError("simulate: `targets` and `check_every_iterate` are not available for a repair scene")
+        return run_repair(scene, out, progress=progress, resume=resume, steps=steps)
     # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
     built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
     if targets is not None:

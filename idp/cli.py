@@ -33,10 +33,6 @@ def _cmd_run(args) -> int:
 
     scene = load_scene(args.scene)
     out = args.output or scene.output.dir
-    if scene.repair is not None:
-        from idp.applications.repair import run_repair
-
-        return _finish(run_repair(scene, out, progress=not args.quiet, resume=args.resume), Path(out))
     result = simulate(
         scene,
         out,

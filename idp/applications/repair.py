@@ -148,6 +148,7 @@ class RepairFrameWriter:
     def __init__(self, writer: Any, condition: Any) -> None:
         self.writer = writer
         self.condition = condition
+        self.last_step = len(condition.frames) - 1
         self.complete = False
 
     def write(self, step: int, x: np.ndarray, time: float | None = None, cell_data: Any = None) -> None:
@@ -155,14 +156,16 @@ class RepairFrameWriter:
         k = c.frame_index(step)
         v = c.output(x)
         self.writer.write(k, v, unchanged=bool(np.array_equal(v, c.sequence.frame(k))))
-        self.complete = step == len(c.frames) - 1
+        self.complete = step == self.last_step
 
     def close(self) -> None:
         if self.complete:
             self.writer.close()
 
 
-def run_repair(scene: Scene, out_dir: str | Path, *, progress: bool = True, resume: bool = False):
+def run_repair(
+    scene: Scene, out_dir: str | Path, *, progress: bool = True, resume: bool = False, steps: int | None = None
+):
     """Repair the scene's sequence into ``out_dir``: the repaired sequence, stats.json, report.json/.md and
     pictures; returns the RunResult (``summary["repair"]`` holds the sequence figures)."""
     if scene.repair is None:
@@ -173,13 +176,15 @@ def run_repair(scene: Scene, out_dir: str | Path, *, progress: bool = True, resu
     from idp.stepper.repair_frames import RepairFrames
 
     out = Path(out_dir)
-    built = build_scene(scene)  # bad input (frames, selections, crossings) fails before anything is written
+    built = build_scene(scene, steps=steps)  # bad input (frames, selections, crossings) fails before anything is written
     cond = next(c for c in built.system.conditions if isinstance(c, RepairFrames))
     seq = cond.sequence
     fmt = seq.format if scene.repair.output == "same" else scene.repair.output
     seq_out = _output_path(out, seq, fmt)
     out.mkdir(parents=True, exist_ok=True)
-    writer = RepairFrameWriter(sequence_writer(seq_out, seq.faces, like=seq, format=fmt, frames=cond.frames), cond)
+    frames = cond.frames[: built.run.steps + 1]  # a step cap (bench, --steps) repairs the first frames only
+    writer = RepairFrameWriter(sequence_writer(seq_out, seq.faces, like=seq, format=fmt, frames=frames), cond)
+    writer.last_step = len(frames) - 1
     result = run_built(scene, built, out, progress=progress, resume=resume, writer=writer)
     from idp.mesh.sequence import open_sequence
     from idp.output.repair_report import write_repair_report
@@ -188,9 +193,11 @@ def run_repair(scene: Scene, out_dir: str | Path, *, progress: bool = True, resu
         seq_out = next(seq_out.glob("*.pvd"))
     repaired = open_sequence(seq_out)
     position = {k: i for i, k in enumerate(cond.frames)}
+    from idp.output.stats import load_stats
+
     report = write_repair_report(
         out,
-        result.step_records,
+        load_stats(out / "stats.json")["steps"],  # with the start state's record
         result.summary,
         faces=seq.faces,
         read_input=seq.frame,

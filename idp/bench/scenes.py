@@ -116,4 +116,6 @@ def suite(data: Path) -> dict:
         "flow_cat": (lambda: paper_scene("fig12_cat.toml"), "full"),
         "flow_bunny3K_inward": (lambda: paper_scene("fig13_bunny3K.toml"), "full"),
         "flow_font_Tao": (lambda: paper_scene("fig14_font_Tao.toml"), "full"),
+        "repair_kick": (lambda: paper_scene("fig16_repair_kick.toml"), "full"),
+        "repair_rumba": (lambda: paper_scene("fig16_repair_rumba.toml"), "full"),
     }

@@ -93,6 +93,7 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         "fill_per_step": [r["fill_fraction"] for r in recs],
         "fill_final": res.summary["fill_fraction"],
         "volume_ratio": (res.summary.get("flow") or {}).get("volume_ratio"),
+        "repair": res.summary.get("repair"),  # animation repair: deviation, unchanged frames, crossings left
         "certified_frames": sum(
             1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]
         ),
