@@ -176,7 +176,7 @@ def run_repair(
     from idp.stepper.repair_frames import RepairFrames
 
     out = Path(out_dir)
-    built = build_scene(scene, steps=steps)  # bad input (frames, selections, crossings) fails before anything is written
+    built = build_scene(scene, steps=steps)  # bad input (frames, selections, crossings) fails before any write
     cond = next(c for c in built.system.conditions if isinstance(c, RepairFrames))
     seq = cond.sequence
     fmt = seq.format if scene.repair.output == "same" else scene.repair.output
