@@ -22,6 +22,10 @@ def test_paper_scene_builds(path):
     assert built.meta["num_vertices"] > 0
     handles = [h for c in built.system.conditions for h in getattr(c, "handles", [])]
     flows = [c for c in built.system.conditions if getattr(c, "report_key", None) == "flow"]
-    assert handles or flows, "every paper scene here is driven by handles or a normal flow"
+    repairs = [c for c in built.system.conditions if getattr(c, "report_key", None) == "repair"]
+    assert handles or flows or repairs, "every paper scene here is driven by handles, a normal flow or a repair"
+    if repairs:  # the mannequin: the manifest's head-and-neck box holds 6,348 vertices; 121 frames
+        assert repairs[0].prescribed.size == 6348 and len(repairs[0].frames) == 121
+        assert built.meta["input_intersecting_pairs"] > 0 and built.run.steps == 120
     if flows:  # a flow's shells carry no elastic energy and its Newton rule is in units of β
         assert built.newton.norm == "rms" and built.newton.tol < abs(load_scene(path).flow.beta)
