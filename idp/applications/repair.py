@@ -155,8 +155,29 @@ class RepairFrameWriter:
         c = self.condition
         k = c.frame_index(step)
         v = c.output(x)
-        self.writer.write(k, v, unchanged=bool(np.array_equal(v, c.sequence.frame(k))))
+        unchanged = bool(np.array_equal(v, c.sequence.frame(k)))
+        dtype = np.dtype(getattr(self.writer, "coordinate_dtype", np.float64))
+        if not unchanged and dtype != np.float64:
+            self._check_rounded(k, v, dtype)
+        self.writer.write(k, v, unchanged=unchanged)
         self.complete = step == self.last_step
+
+    def _check_rounded(self, k: int, v: np.ndarray, dtype: np.dtype) -> None:
+        """A format that stores fewer digits (USD's float32 points) writes a rounded frame: certify that one too
+        (rounding moves a vertex by ~1e-7 of its coordinates, far below d̂, but the certificate is the rule)."""
+        from idp.contact.intersections import intersecting_pair_keys
+        from idp.errors import CertificateError
+
+        rounded = v.astype(dtype).astype(np.float64)
+        c = self.condition
+        X = np.zeros((int(c.vertex_ids.max()) + 1, 3))
+        X[c.vertex_ids] = rounded
+        new = intersecting_pair_keys(X, c.faces) - c.preserved
+        if new:
+            raise CertificateError(
+                f"frame {k}: rounding to {dtype} for {self.writer.out} makes {len(new)} surface pair(s) cross; "
+                "write another form (--format npz/obj/pvd keep float64)"
+            )
 
     def close(self) -> None:
         if self.complete:
