@@ -209,3 +209,25 @@ def test_a_killed_repair_resumes_to_the_same_output(tmp_path):
         assert not intersecting_pair_keys(b.frame(k), F), f"resumed frame {k} intersects"
         assert np.abs(a.frame(k) - b.frame(k)).max() < DHAT, f"frame {k} differs by more than d̂ after the resume"
     assert np.array_equal(a.frame(V.shape[0] - 1), V[-1]) and np.array_equal(b.frame(V.shape[0] - 1), V[-1])
+
+
+def test_cli_arguments_are_checked_with_clear_errors(tmp_path, capsys):
+    from idp.applications.repair import parse_frames, parse_selection
+    from idp.cli import main
+
+    assert parse_frames("3:10") == (3, 10) and parse_frames(":5") == (0, 5) and parse_frames("2:") == (2, None)
+    assert parse_selection("relbox:0,0.8,0,1,1,1") == {"box": [[0, 0.8, 0], [1, 1, 1]], "relative": True}
+    assert parse_selection("indices:4, 7 9") == {"indices": [4, 7, 9]}
+    V, F, _ = two_spheres(num_frames=4)
+    inp = _save_npz(tmp_path / "s.npz", V, F)
+    for args, message in [
+        (["--frames", "3"], "A:B"),
+        (["--frames", "a:b"], "integers"),
+        (["--frames", "2:3"], "at least start + 2"),
+        (["--fixed", "box:1,2,3"], "6 numbers"),
+        (["--fixed", "sphere:1"], "expected box"),
+    ]:
+        assert main(["repair", str(inp), "-o", str(tmp_path / "o"), "-q", *args]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["repair", str(tmp_path / "missing_*.obj"), "-o", str(tmp_path / "o"), "-q"]) == 2
+    assert not (tmp_path / "o").exists()
