@@ -281,6 +281,8 @@ def build_scene(
                 )
                 preserved |= _touching_crossings(touching, all_surface)
             n_touching = len(touching)
+            if preserved:  # pairs around a kept crossing are squeezed by design: κ does not chase them
+                contact.exempt_from_kappa(np.unique([v for key in preserved for side in key for v in side]))
         ev = contact.evaluate(x)
         if ev.num_active and contact.min_distance(ev) <= 0.0:
             raise IntersectingInputError(

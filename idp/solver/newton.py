@@ -326,7 +326,7 @@ class StepSolver:
         ev = self._contact_eval(x, res)
         if ev is not None:
             self._init_kappa(x, x_prev, ev)
-        prev_min_d = s.contact.min_distance(ev) if ev is not None else math.inf
+        prev_min_d = s.contact.kappa_distance(ev) if ev is not None else math.inf
         energy, el, bar = self._energy(x, x_prev, ev)
         if not math.isfinite(energy):
             raise SolverError(
@@ -373,7 +373,7 @@ class StepSolver:
                     break
 
             if ev is not None:
-                min_d = s.contact.min_distance(ev)
+                min_d = s.contact.kappa_distance(ev)
                 kappa_before = s.contact.kappa
                 s.contact.update_kappa(prev_min_d, min_d)
                 prev_min_d = min_d
