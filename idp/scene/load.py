@@ -107,7 +107,8 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
                 continue
         if ob.mesh is not None and scene.repair is None:
             ob.mesh = _absolute(ob.mesh, base)
-            if not ob.mesh.is_file() and not (ob.frame is not None and ob.mesh.is_dir()):
+            sequence = ob.frame is not None and (ob.mesh.is_dir() or any(ch in str(ob.mesh) for ch in "*?["))
+            if not ob.mesh.is_file() and not sequence:  # a sequence folder or glob is checked when opened
                 missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
         for j, hd in enumerate(ob.handles):
             if hd.motion.file is not None:

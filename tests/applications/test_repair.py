@@ -231,3 +231,18 @@ def test_cli_arguments_are_checked_with_clear_errors(tmp_path, capsys):
         assert message in capsys.readouterr().err
     assert main(["repair", str(tmp_path / "missing_*.obj"), "-o", str(tmp_path / "o"), "-q"]) == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_any_scene_object_can_start_from_a_sequence_frame(tmp_path):
+    from idp.scene.build import build_scene
+    from idp.scene.load import scene_from_dict
+
+    V, F, _ = two_spheres(num_frames=4)
+    w = sequence_writer(tmp_path / "frames", F, format="obj")
+    for k in range(V.shape[0]):
+        w.write(k, V[k])
+    w.close()
+    for mesh in ("frames", "frames/*.obj"):
+        doc = {"objects": [{"name": "s", "kind": "shell", "mesh": mesh, "frame": 3}], "contact": {"dhat": DHAT}}
+        built = build_scene(scene_from_dict(doc, base_dir=tmp_path))
+        assert np.array_equal(built.system.x, V[3])  # frame 3: apart again (frames 1, 2 cross)
