@@ -155,7 +155,8 @@ class RepairFrameWriter:
         c = self.condition
         k = c.frame_index(step)
         v = c.output(x)
-        unchanged = bool(np.array_equal(v, c.sequence.frame(k)))
+        f = c.input if c.input is not None and c.frame_index(c.step) == k else c.sequence.frame(k)
+        unchanged = bool(np.array_equal(v, f))
         dtype = np.dtype(getattr(self.writer, "coordinate_dtype", np.float64))
         if not unchanged and dtype != np.float64:
             self._check_rounded(k, v, dtype)

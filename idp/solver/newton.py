@@ -314,7 +314,7 @@ class StepSolver:
             if c is not None:
                 c.accept(x_prev)
             res.converged, res.exact, res.decrement = True, True, 0.0
-            res.min_distance = s.contact.min_distance(s.contact.evaluate(x_prev)) if s.contact is not None else math.inf
+            # no pair within d̂ at the target (checked above): the minimum distance is inf, as for no contact
             return x_prev.copy(), res
 
         def feasible(x_: np.ndarray, P_: np.ndarray) -> float:  # the constraint's moves, timed with the step's
