@@ -44,6 +44,7 @@ import numpy as np
 from numba import njit, prange
 
 from idp._small_dense import symmetric_eigen_jacobi
+from idp.energies._pnorm_kernels import power_tail, rest_value, sigma_gradient
 
 NEO_HOOKEAN = 0
 SYMMETRIC_DIRICHLET = 1
@@ -336,6 +337,7 @@ def _element_chunk(
     want_grad: bool,
     want_hess: bool,
     project: bool,
+    power: float,
     energy_out: np.ndarray,
     grad_out: np.ndarray,
     hess_out: np.ndarray,
@@ -361,7 +363,9 @@ def _element_chunk(
     flip = np.zeros((d, d))
     twist = np.zeros((d, d))
     sig = np.empty(d)
+    dpsi = np.empty(d)
     lamS = np.empty(d)
+    pnorm = power != 1.0
     g = np.empty(k)
     Gs = np.empty((d, k))
     for t in range(t_begin, t_end):
@@ -430,7 +434,17 @@ def _element_chunk(
                     nE += Eg[r, c] * Eg[r, c]
                 trE += Eg[r, r]
             psi = pa * nE + 0.5 * pb * trE * trE
-        energy_out[t] = v * psi
+        # p-norm (paper eq. 9, see _pnorm_kernels): energy v Ψ̂(I) g(ρ)/p, stress × c1, σ-Hessian c1 S + c2 ψψᵀ
+        c1 = 1.0
+        c2 = 0.0
+        if pnorm:
+            psi0 = rest_value(model, pa, d)
+            gv, g1, g2 = power_tail((psi + psi0) / psi0, power)
+            energy_out[t] = v * psi0 * gv / power
+            c1 = g1 / power
+            c2 = g2 / (power * psi0)
+        else:
+            energy_out[t] = v * psi
         if want_grad:
             # P = dPsi/dF using F^{-T}[r,c] = Fi[c,r]
             if model == NEO_HOOKEAN:
@@ -463,13 +477,14 @@ def _element_chunk(
                         for a2 in range(d):
                             acc += F[r, a2] * Eg[a2, c]
                         P[r, c] = 2.0 * pa * acc + pb * trE * F[r, c]
-            # PW = v P Dm^{-T}
+            # PW = v c1 P Dm^{-T}
+            vc1 = v * c1
             for r in range(d):
                 for a in range(d):
                     acc = 0.0
                     for c in range(d):
                         acc += P[r, c] * dm_inv[t, a, c]
-                    PW[r, a] = v * acc
+                    PW[r, a] = vc1 * acc
             _pull_back(PW, d, g)
             for i in range(k):
                 grad_out[t, i] = g[i]
@@ -481,6 +496,13 @@ def _element_chunk(
             if not have_svd:
                 _rotation_svd(F, d, U, sig, V, A)
             _sigma_eigensystem(model, pa, pb, sig, lnJ, d, S, flip, twist)
+            if pnorm:
+                sigma_gradient(model, pa, pb, sig, lnJ, d, dpsi)
+                for i in range(d):
+                    for j in range(d):
+                        S[i, j] = c1 * S[i, j] + c2 * dpsi[i] * dpsi[j]
+                        flip[i, j] *= c1
+                        twist[i, j] *= c1
             direct = (not project) or _is_pd(S, d)
             if not direct:
                 symmetric_eigen_jacobi(S, d, Q, lamS)
@@ -566,6 +588,7 @@ def element_terms(
     want_grad: bool,
     want_hess: bool,
     project: bool,
+    power: float,
     energy_out: np.ndarray,
     grad_out: np.ndarray,
     hess_out: np.ndarray,
@@ -575,7 +598,8 @@ def element_terms(
     For the barrier models (NH, SD) elements with det F <= 0 get energy +inf and NaN gradient /
     Hessian (undefined there; callers keep iterates feasible with the inversion filter); ARAP and
     StVK are finite everywhere.  NH, StVK: param_a = mu, param_b = lambda; SD: param_a = weight;
-    ARAP: param_a = mu (param_b unused).  Parallel over chunks of
+    ARAP: param_a = mu (param_b unused).  ``power`` p ≠ 1 evaluates the p-norm extension of NH or SD
+    (paper eq. 9, :mod:`idp.energies._pnorm_kernels`); 1 is the plain energy.  Parallel over chunks of
     CHUNK elements; every element writes only its own output rows (no races).
     """
     m = elements.shape[0]
@@ -594,6 +618,7 @@ def element_terms(
             want_grad,
             want_hess,
             project,
+            power,
             energy_out,
             grad_out,
             hess_out,
@@ -649,6 +674,7 @@ def element_terms_reference(
     param_a: np.ndarray,
     param_b: np.ndarray,
     project: bool = True,
+    power: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Plain numpy (energy (m,), gradient (m,k), Hessian (m,k,k)); the barrier models assume all det F > 0.
 
@@ -689,6 +715,15 @@ def element_terms_reference(
         trE = np.trace(Eg, axis1=1, axis2=2)
         psi = a * np.einsum("mij,mij->m", Eg, Eg) + 0.5 * b * trE**2
         P = F @ (2 * a[:, None, None] * Eg + (b * trE)[:, None, None] * np.eye(d))
+    c1 = np.ones(m)
+    c2 = np.zeros(m)
+    if power != 1.0:  # p-norm (eq. 9) straight from ρ^p, without the overflow tail of the kernel
+        psi0 = 2.0 * d * a if model == SYMMETRIC_DIRICHLET else 0.5 * d * a
+        rho = (psi + psi0) / psi0
+        psi = psi0 * rho**power / power
+        c1 = rho ** (power - 1.0)
+        c2 = (power - 1.0) * rho ** (power - 2.0) / psi0
+        P = c1[:, None, None] * P
     B = deformation_map(dm_inv)
     grad = volumes[:, None] * np.einsum("mrk,mr->mk", B, P.reshape(m, d * d))
 
@@ -718,6 +753,14 @@ def element_terms_reference(
         p3 = (si * sj) ** 3
         flip = w2 * (1 + (si**2 + si * sj + sj**2) / p3)
         twist = w2 * (1 - (si**2 - si * sj + sj**2) / p3)
+    if power != 1.0:
+        if model == SYMMETRIC_DIRICHLET:
+            dpsi = 2.0 * a[:, None] * (sig - sig**-3)
+        else:
+            dpsi = a[:, None] * sig - (a - b * lnJ)[:, None] / sig
+        S = c1[:, None, None] * S + c2[:, None, None] * dpsi[:, :, None] * dpsi[:, None, :]
+        flip = c1[:, None, None] * flip
+        twist = c1[:, None, None] * twist
     lamS, Qs = np.linalg.eigh(S)
     modes = []
     lams = []

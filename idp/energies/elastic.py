@@ -159,6 +159,10 @@ class ElasticEnergy:
     #: Fraction of an element's current volume the inversion filter lets it shrink to along one step.
     inversion_eta: float = 0.1
 
+    #: Exponent p of the p-norm extension E_p = r(p) Σ v Ψ̂^p (paper eq. 9); 1 is the plain energy
+    #: (:class:`idp.energies.pnorm.PNormEnergy` sets it).
+    power: float = 1.0
+
     @property
     def guards_inversion(self) -> bool:
         """True for barrier energies (NH, SD: → +inf as det F → 0⁺): the line search must keep det F > 0.
@@ -314,6 +318,7 @@ class ElasticEnergy:
                 grad,
                 hess,
                 bool(project),
+                self.power,
                 e,
                 g,
                 h,
@@ -376,6 +381,7 @@ class ElasticEnergy:
                 True,
                 True,
                 bool(project),
+                self.power,
                 e[a:b],
                 g[a:b],
                 h,

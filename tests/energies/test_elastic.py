@@ -423,7 +423,7 @@ def test_kernel_matches_numpy_reference(model: str, d: int) -> None:
                 k = (d + 1) * d
                 e, g, H = np.empty(m), np.empty((m, k)), np.empty((m, k, k))
                 K.element_terms(
-                    x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb, True, True, project, e, g, H
+                    x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb, True, True, project, 1.0, e, g, H
                 )
                 er, gr, Hr = K.element_terms_reference(
                     x, E.elements, E.Dm_inv, E.volumes, E._model_id, E._pa, E._pb, project
