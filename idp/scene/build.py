@@ -13,6 +13,7 @@ from idp.contact.certificate import Certifier
 from idp.contact.model import ContactModel
 from idp.energies.elastic import ElasticEnergy, lame_parameters
 from idp.energies.inertia import lumped_masses
+from idp.energies.pnorm import PNormEnergy
 from idp.errors import IntersectingInputError, MeshError, SceneError
 from idp.mesh import generate as gen
 from idp.mesh.io import read_mesh
@@ -23,6 +24,7 @@ from idp.output.parts import Part
 from idp.scene.build_handles import motion_from_spec, selection_from_spec
 from idp.solver.newton import NewtonSettings
 from idp.stepper.dirichlet import DirichletTargets
+from idp.stepper.distortion import DistortionMonitor
 from idp.stepper.handles import Handle, HandleSet, check_static_overlaps
 from idp.stepper.run import RunSettings
 from idp.stepper.system import Body, RestShapeSchedule, System, WeightedTerm
@@ -58,6 +60,7 @@ class BuiltScene:
     dhat: float
     input_intersections: int
     meta: dict
+    uv_objects: dict[str, UVObject] | None = None
 
 
 def _sequence_frame(obj, usd_prim: str | None) -> SurfaceMesh:
@@ -102,6 +105,32 @@ def _load_object_mesh(obj, dim: int, usd_prim: str | None = None) -> VolumeMesh 
     if mesh.vertices.shape[1] != dim:
         raise MeshError(f"{mesh.source}: object {obj.name!r} is {mesh.vertices.shape[1]}D but the scene is {dim}D")
     return mesh
+
+
+@dataclass
+class UVObject:
+    """A UV map read for simulation (paper §7.4): its file, rest metric from 3D and whether it was mirrored."""
+
+    mesh: Any  # idp.mesh.uv_obj.UVMesh
+    rest_frames: np.ndarray  # (m, 2, 2) of the 3D triangles, in the simulation's triangle order
+    areas: np.ndarray  # (m,) 3D triangle areas
+    mirrored: bool  # every UV triangle was clockwise: vertex order swapped for the simulation
+
+
+def _load_uv_object(obj, i: int) -> tuple[VolumeMesh, UVObject]:
+    """The UV layout of an OBJ as a 2D triangle mesh (nodes = vt) and the rest metric of its 3D triangles."""
+    from idp.mesh.uv_obj import orient_uv_mesh, read_uv_obj, uv_rest_frames
+
+    try:
+        uvm = read_uv_obj(obj.mesh)
+        faces_xyz, faces_uv, mirrored = orient_uv_mesh(uvm)
+        Dm, areas = uv_rest_frames(uvm.positions, faces_xyz, face_lines=uvm.face_lines, source=uvm.source)
+    except MeshError as exc:
+        raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
+    if mirrored:
+        log.warning("%s: every UV triangle is clockwise; simulating the mirrored layout", uvm.source)
+    mesh = VolumeMesh(np.ascontiguousarray(uvm.uv), np.ascontiguousarray(faces_uv), source=uvm.source)
+    return mesh, UVObject(uvm, Dm, areas, mirrored)
 
 
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
@@ -151,11 +180,15 @@ def build_scene(
     dim = scene.dim
     deformables: list[tuple[int, Any, Any, np.ndarray]] = []  # VolumeMesh, or SurfaceMesh for shells
     obstacles: list[tuple[int, Any, SurfaceMesh, np.ndarray]] = []
+    uv_objects: dict[str, UVObject] = {}
     for i, obj in enumerate(scene.objects):
-        try:
-            mesh = _load_object_mesh(obj, dim, scene.repair.usd_prim if scene.repair is not None else None)
-        except MeshError as exc:
-            raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
+        if obj.uv:
+            mesh, uv_objects[obj.name] = _load_uv_object(obj, i)
+        else:
+            try:
+                mesh = _load_object_mesh(obj, dim, scene.repair.usd_prim if scene.repair is not None else None)
+            except MeshError as exc:
+                raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
         verts = _place(obj, mesh.vertices, dim)
         if obj.kind in ("deformable", "shell"):
             deformables.append((i, obj, mesh, verts))
@@ -239,9 +272,12 @@ def build_scene(
     energies = []
     for obj, ids, elements, sched in bodies:
         mat = obj.material
-        el = ElasticEnergy(
-            mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio, weight=getattr(mat, "weight", None)
-        )
+        args = (mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio)
+        weight = getattr(mat, "weight", None)
+        el = ElasticEnergy(*args, weight=weight) if mat.power == 1.0 else PNormEnergy(*args, weight, mat.power)
+        if obj.name in uv_objects:  # rest metric of the 3D triangles, not of the UV layout
+            uvo = uv_objects[obj.name]
+            el.set_base_rest_frames(uvo.rest_frames, uvo.areas)
         masses += lumped_masses(N, elements, el.volumes, mat.density)
         energies.append(Body(obj.name, ids, el, sched))
     shell_terms = _shell_terms(shells, x, masses)
@@ -328,6 +364,14 @@ def build_scene(
         linear_terms=linear_terms,
     )
     system.conditions.extend(material_conditions)
+    want_distortion = scene.output.distortion
+    if want_distortion is None:
+        want_distortion = bool(uv_objects) or any(b[0].material.power != 1.0 for b in bodies)
+    if want_distortion and energies:
+        part_index = {p.name: k for k, p in enumerate(parts)}
+        system.conditions.append(DistortionMonitor(energies, [part_index[b.name] for b in energies]))
+    if uv_objects:
+        meta["uv_objects"] = {name: {"source": u.mesh.source, "mirrored": u.mirrored} for name, u in uv_objects.items()}
     if repair is not None:
         system.conditions.append(repair)  # before the handle set: it streams the prescribed vertices' targets
     if flow is not None:
@@ -383,6 +427,7 @@ def build_scene(
     run = RunSettings(
         steps=steps or t.steps,
         stop_when_stationary=t.stop_when_stationary,
+        stop_after_single_iteration=t.stop_after_single_iteration,
         stationary_tol=t.stationary_tol,
         write_every=o.every,
         write_obj=o.obj,
@@ -391,7 +436,7 @@ def build_scene(
         on_nonconvergence=s.on_nonconvergence,
         on_unmet_targets=scene.dirichlet.on_unmet,
     )
-    return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta)
+    return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
 
 
 def _repair_frames(scene, shells, terms: list[WeightedTerm], preserved: set):

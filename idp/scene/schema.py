@@ -69,6 +69,8 @@ class TimeConfig(_Model):
     steps: PosInt = 60
     stop_when_stationary: Bool = False
     stationary_tol: PosFloat = 1e-5
+    # stop after the first step whose Newton solve needs at most one iteration (the paper's rule for UV maps, §7.4)
+    stop_after_single_iteration: Bool = False
 
 
 class SolverConfig(_Model):
@@ -116,6 +118,9 @@ class OutputConfig(_Model):
     obj: Bool = True
     vtu: Bool = True
     png: Bool = True
+    # per-step distortion figures (worst / 99th percentile / mean symmetric Dirichlet) in stats.json and a
+    # `distortion` cell field in the VTU frames; default: on when a material has power > 1 or an object is a UV map
+    distortion: Bool | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -134,6 +139,8 @@ class Material(_Model):
     poisson_ratio: Annotated[float, Strict(), Field(gt=-1)] = 0.4
     density: PosFloat = 1000.0
     weight: PosFloat | None = None
+    # p of the p-norm extension E_p = r(p) Σ v Ψ̂^p (paper §7.4, eq. 9) of symmetric Dirichlet or neo-Hookean
+    power: Annotated[float, Strict(), Field(ge=1, allow_inf_nan=False)] = 1.0
 
     @field_validator("poisson_ratio")
     @classmethod
@@ -163,6 +170,13 @@ class Material(_Model):
                 self.weight = self.mu
         elif self.weight is not None:
             raise rule_error([("weight", 'only used by model = "symmetric_dirichlet" or "arap"')])
+        if self.power != 1.0:
+            if self.model not in ("symmetric_dirichlet", "neo_hookean"):
+                raise rule_error(
+                    [("power", 'the p-norm extends model = "symmetric_dirichlet" or "neo_hookean" (barrier energies)')]
+                )
+            if self.model == "neo_hookean" and self.poisson_ratio < 0:
+                raise rule_error([("power", "a neo-Hookean p-norm needs poisson_ratio >= 0")])
         return self
 
 
@@ -476,6 +490,9 @@ class SceneObject(_Model):
     material: Material | None = None  # filled with Material() for deformables
     shell: ShellMaterial | None = None  # filled by Scene: ShellMaterial() (or no elasticity in a flow)
     fix_boundary: Bool | None = None  # shells: pin the boundary vertices of open surfaces (default: no; flows: yes)
+    # 2D deformables: `mesh` is an OBJ with texture coordinates; the simulated nodes are its vt coordinates, the
+    # elements its UV-indexed triangles and the rest metric that of the corresponding 3D triangles (paper §7.4)
+    uv: Bool = False
     rest_shape: RestShape | None = None  # filled with RestShape() for deformables
     fixed: list[FixedSelector] = Field(default_factory=list)
     handles: list[HandleSpec] = Field(default_factory=list)
@@ -508,6 +525,8 @@ class SceneObject(_Model):
             for key in ("material_stages", "rest_scripts"):
                 if getattr(self, key):
                     probs.append((key, "not supported on shells"))
+        if self.uv and (self.kind != "deformable" or self.mesh is None or self.frame is not None):
+            probs.append(("uv", "only for a deformable object whose `mesh` is an OBJ file with texture coordinates"))
         if self.kind == "obstacle":
             for key in ("material", "rest_shape"):
                 if getattr(self, key) is not None:
@@ -664,6 +683,8 @@ class Scene(_Model):
                 )
             if ob.kind == "shell" and d != 3:
                 probs.append((f"{p}.kind", "shells are triangle surfaces in 3D (dim = 3)"))
+            if ob.uv and d != 2:
+                probs.append((f"{p}.uv", "a UV map is simulated in its 2D texture plane (dim = 2)"))
         if not any(ob.kind in ("deformable", "shell") for ob in self.objects):
             probs.append(("objects", "at least one deformable or shell object is required"))
         if self.flow is not None and not any(ob.kind == "shell" for ob in self.objects):

@@ -49,9 +49,10 @@ class StepConstraint(Protocol):
         ...
 
     def after_iterate(
-        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep
+        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep, contact_limited: bool = False
     ) -> tuple[np.ndarray, bool]:
-        """After an accepted iterate: (possibly snapped x, whether the objective changed)."""
+        """After an accepted iterate: (possibly snapped x, whether the objective changed); ``contact_limited``:
+        the iterate's step was cut by CCD."""
         ...
 
     @property

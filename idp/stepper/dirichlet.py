@@ -11,8 +11,8 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    resistance alone a doubling roughly halves the residual; against contact the barrier stiffens so fast that
    it barely moves, and further doublings only crush the gaps (measured on Fig. 3 with a 1 % threshold:
    minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps). Blocked targets are also detected away
-   from convergence: when ``stall_iterations`` (30) Newton iterates in a row bring the worst bound vertex less
-   than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held where they are
+   from convergence: when ``stall_iterations`` (30) Newton iterates whose steps CCD cut bring the worst bound
+   vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held where they are
    and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
@@ -180,7 +180,7 @@ class DirichletTargets:
         return diag
 
     def after_iterate(
-        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep
+        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep, contact_limited: bool = False
     ) -> tuple[np.ndarray, bool]:
         if self._met:
             return x, False
@@ -195,11 +195,13 @@ class DirichletTargets:
                 return x, True
         if self._penalty_on and not near_converged:
             # stagnation: the penalty has not brought the worst handle min_progress closer for stall_iterations
-            # Newton iterates (contact keeps cutting the steps); freeze the handles where they are
+            # Newton iterates whose steps contact (CCD) cut; freeze the handles where they are. Iterates that
+            # nothing cut are Newton converging towards the penalised minimum (a stiff energy such as a high
+            # p-norm takes many): they neither count as stalled nor reset the count.
             pen = float(dist[self._dof].max())
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
-            else:
+            elif contact_limited:
                 self._stalled += 1
                 if self._stalled >= self.stall_iterations:
                     self._hold(met=False)

@@ -30,6 +30,7 @@ class RunSettings:
     steps: int = 60
     stop_when_stationary: bool = False
     stationary_tol: float = 1e-5
+    stop_after_single_iteration: bool = False  # stop after the first step solved by one Newton iteration (§7.4)
     write_every: int = 1
     write_obj: bool = True
     write_vtu: bool = True
@@ -276,7 +277,8 @@ def run_simulation(
                 log.warning(msg)
             last = step == settings.steps
             stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
-            if last or stationary or step % settings.write_every == 0:
+            single = settings.stop_after_single_iteration and res.converged and res.iterations <= 1
+            if last or stationary or single or step % settings.write_every == 0:
                 writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
             _save_checkpoint(checkpoint, x, step, system)
             if progress is not None:
@@ -295,6 +297,9 @@ def run_simulation(
                 if step % settings.write_every != 0:
                     writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
                 stopped_reason = f"stationary (max |dx| {max_move:.2e} < {settings.stationary_tol:g})"
+                break
+            if single:
+                stopped_reason = f"step {step} converged in {res.iterations} Newton iteration(s)"
                 break
     except KeyboardInterrupt:
         stopped_reason = f"interrupted during step {step}"

@@ -112,14 +112,29 @@ def test_stalled_targets_are_frozen_where_they_are():
     x = bc.begin(x, lambda x, P: 0.0)
     x[0] = 0.5
     for k in range(5):  # the first call sets the best residual, four more without progress
-        assert bc.after_iterate(x, False, lambda x, P: 0.0) == (x, False), k
+        assert bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=True) == (x, False), k
         x[0] += 0.001  # creeping: under 10 % of the residual per iterate
-    x_out, changed = bc.after_iterate(x, False, lambda x, P: 0.0)
+    x_out, changed = bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=True)
     assert changed and x_out is x  # frozen where it is: no move
     assert bc.settled and not bc.met
     rep = bc.report(x, 1e-3)
     assert rep["blocked"] and rep["frozen_after_stall"] and rep["residual_max"] == pytest.approx(1.0 - x[0, 0])
     assert bc.held_dofs()[0] and not bc.held_dofs()[1] and bc.penalty_value(x) == 0.0
+
+
+def test_slow_newton_without_contact_is_not_taken_for_a_stall():
+    """Iterates that CCD did not cut (Newton creeping towards the penalised minimum of a stiff energy) never
+    freeze the handles: the §4.3 doubling near convergence decides."""
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[1.0]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    x[0] = 0.5
+    for k in range(20):
+        assert bc.after_iterate(x, False, lambda x, P: 0.0) == (x, False), k
+        x[0] += 0.001
+    assert not bc.settled and not bc.frozen and bc.penalty_value(x) > 0
+    assert bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.doublings == 1
 
 
 def test_handle_pushed_into_an_obstacle_keeps_injectivity_and_reports_the_residual(tmp_path):
