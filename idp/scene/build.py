@@ -115,22 +115,26 @@ class UVObject:
     rest_frames: np.ndarray  # (m, 2, 2) of the 3D triangles, in the simulation's triangle order
     areas: np.ndarray  # (m,) 3D triangle areas
     mirrored: bool  # every UV triangle was clockwise: vertex order swapped for the simulation
+    metric_scale: float  # the 3D lengths' factor that makes the total 3D area equal the UV area
 
 
 def _load_uv_object(obj, i: int) -> tuple[VolumeMesh, UVObject]:
     """The UV layout of an OBJ as a 2D triangle mesh (nodes = vt) and the rest metric of its 3D triangles."""
-    from idp.mesh.uv_obj import orient_uv_mesh, read_uv_obj, uv_rest_frames
+    from idp.mesh.uv_obj import orient_uv_mesh, read_uv_obj, uv_rest_frames, uv_signed_areas
 
     try:
-        uvm = read_uv_obj(obj.mesh)
-        faces_xyz, faces_uv, mirrored = orient_uv_mesh(uvm)
-        Dm, areas = uv_rest_frames(uvm.positions, faces_xyz, face_lines=uvm.face_lines, source=uvm.source)
+        uvm, mirrored = orient_uv_mesh(read_uv_obj(obj.mesh))
+        Dm, areas = uv_rest_frames(uvm.positions, uvm.faces_xyz, face_lines=uvm.face_lines, source=uvm.source)
     except MeshError as exc:
         raise MeshError(f"objects[{i}] ({obj.name}): {exc}") from exc
+    # distortion is of shape, not of the layout's overall scale (UV tools normalise charts to the unit square):
+    # the 3D metric is scaled uniformly so that the total 3D area equals the total UV area
+    scale = float(np.sqrt(np.abs(uv_signed_areas(uvm.uv, uvm.faces_uv)).sum() / areas.sum()))
+    Dm, areas = Dm * scale, areas * scale**2
     if mirrored:
         log.warning("%s: every UV triangle is clockwise; simulating the mirrored layout", uvm.source)
-    mesh = VolumeMesh(np.ascontiguousarray(uvm.uv), np.ascontiguousarray(faces_uv), source=uvm.source)
-    return mesh, UVObject(uvm, Dm, areas, mirrored)
+    mesh = VolumeMesh(np.ascontiguousarray(uvm.uv), np.ascontiguousarray(uvm.faces_uv), source=uvm.source)
+    return mesh, UVObject(uvm, Dm, areas, mirrored, scale)
 
 
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
@@ -371,7 +375,10 @@ def build_scene(
         part_index = {p.name: k for k, p in enumerate(parts)}
         system.conditions.append(DistortionMonitor(energies, [part_index[b.name] for b in energies]))
     if uv_objects:
-        meta["uv_objects"] = {name: {"source": u.mesh.source, "mirrored": u.mirrored} for name, u in uv_objects.items()}
+        meta["uv_objects"] = {
+            name: {"source": u.mesh.source, "mirrored": u.mirrored, "metric_scale": u.metric_scale}
+            for name, u in uv_objects.items()
+        }
     if repair is not None:
         system.conditions.append(repair)  # before the handle set: it streams the prescribed vertices' targets
     if flow is not None:

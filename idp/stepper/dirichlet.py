@@ -10,7 +10,10 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    (the paper is silent here): κ_B stays, the step converges with the residual reported. Against elastic
    resistance alone a doubling roughly halves the residual; against contact the barrier stiffens so fast that
    it barely moves, and further doublings only crush the gaps (measured on Fig. 3 with a 1 % threshold:
-   minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps). Blocked targets are also detected away
+   minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps). A small gain that is larger than the one of
+   the doubling before is not a block: against an elastic stiffness K far above κ_B (a stiff p-norm energy
+   around a bone handle) the gain κ/(K + 2κ) is small but grows with every doubling, whereas against contact
+   the barrier stiffens as the gap closes and the gains shrink. Blocked targets are also detected away
    from convergence: when ``stall_iterations`` (30) Newton iterates whose steps CCD cut bring the worst bound
    vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held where they are
    and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
@@ -85,6 +88,7 @@ class DirichletTargets:
         self._met = True
         self._blocked = False
         self._last_residual: float | None = None
+        self._last_gain: float | None = None
         self._best_residual: float | None = None
         self._stalled = 0
         self.feasible_fraction = 1.0
@@ -223,9 +227,11 @@ class DirichletTargets:
                 changed = True
         if self._penalty_on:
             pen = float(dist[self._dof].max())
-            if self._last_residual is not None and pen > (1.0 - self.min_progress) * self._last_residual:
-                pass  # the last doubling barely brought the handles closer: blocked (stiffening only crushes gaps)
+            gain = None if self._last_residual is None else 1.0 - pen / self._last_residual
+            if gain is not None and gain < self.min_progress and self._last_gain is not None and gain <= self._last_gain:
+                pass  # doublings barely bring the handles closer, and less and less: blocked (stiffening crushes gaps)
             elif self.kappa < self.kappa_max:
+                self._last_gain = gain
                 self._last_residual = pen
                 self.kappa = min(2.0 * self.kappa, self.kappa_max)
                 self.doublings += 1

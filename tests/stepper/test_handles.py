@@ -99,9 +99,26 @@ def test_blocked_targets_stop_the_doubling():
     x = bc.begin(x, lambda x, P: 0.0)
     x[0] = 0.5
     assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]  # first doubling
-    x[0] = 0.502  # less than 1 % closer after the doubling: blocked
+    x[0] = 0.502  # less than 1 % closer after the doubling: one more doubling to see whether gains grow
+    assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]
+    x[0] = 0.503  # an even smaller gain: blocked
     assert bc.after_iterate(x, True, lambda x, P: 0.0) == (x, False)
-    assert bc.settled and not bc.met and bc.report(x, 1e-3)["blocked"]
+    assert bc.settled and not bc.met and bc.report(x, 1e-3)["blocked"] and bc.doublings == 2
+
+
+def test_growing_small_gains_keep_doubling():
+    """Against an elastic stiffness K ≫ κ_B the residual shrinks by κ/(K + 2κ) per doubling: small, but growing
+    with κ — not a block."""
+    K, kappa0, target = 1e4, 1.0, 1.0
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=kappa0, min_progress=0.1)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[target]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    for _ in range(12):  # the penalised minimum of K/2 x² + κ/2 (x − 1)² for the current κ
+        x[0] = bc.kappa / (K + bc.kappa) * target
+        _, changed = bc.after_iterate(x, True, lambda x, P: 0.0)
+        assert changed and not bc.settled
+    assert bc.doublings == 12
 
 
 def test_stalled_targets_are_frozen_where_they_are():
