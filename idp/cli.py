@@ -1,4 +1,4 @@
-"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp check``, ``idp demo``, ``idp bench``."""
+"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp uv``, ``idp check``, ``idp demo``, ``idp bench``."""
 
 from __future__ import annotations
 
@@ -110,6 +110,42 @@ def _cmd_repair(args) -> int:
     )
     result = run_repair(scene, out, progress=not args.quiet, resume=args.resume)
     return _finish(result, out)
+
+
+def _cmd_uv(args) -> int:
+    _set_threads(args.threads)
+    from idp.applications.uv_map import default_report_dir, run_uv, uv_scene
+    from idp.errors import SceneError
+
+    if args.p < 1:
+        raise SceneError(f"--p must be >= 1 (got {args.p:g}): the p-norm of eq. 9 needs p >= 1")
+    if args.steps < 1:
+        raise SceneError(f"--steps must be >= 1 (got {args.steps})")
+    scene = uv_scene(
+        args.input,
+        p=args.p,
+        steps=args.steps,
+        dhat=args.dhat,
+        youngs_modulus=args.youngs_modulus,
+        newton_tol=args.newton_tol,
+        preserve_overlaps=args.preserve_overlaps,
+    )
+    out = Path(args.output)
+    result, report = run_uv(
+        scene, out, report_dir=args.report, overwrite=args.overwrite, progress=not args.quiet, resume=args.resume
+    )
+    b, a = report["before"], report["after"]
+    print(
+        f"distortion (SD, 4 = isometric):  worst {b['worst']:.4g} -> {a['worst']:.4g}, "
+        f"p99 {b['p99']:.4g} -> {a['p99']:.4g}, mean {b['mean']:.4g} -> {a['mean']:.4g}"
+    )
+    print(f"flipped UV triangles after:      {report['flipped_after']}")
+    print(f"overlapping UV pairs after:      {report['overlapping_pairs_after']}")
+    print(f"written:                         {out} (only vt lines changed)")
+    code = _finish(result, Path(args.report) if args.report else default_report_dir(out))
+    if report["flipped_after"] or report["overlapping_pairs_after"] > report["overlapping_pairs_before"]:
+        return EXIT_CERTIFICATE
+    return code
 
 
 def _finish(result, out: Path) -> int:
@@ -287,6 +323,22 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")
     rp.add_argument("-q", "--quiet", action="store_true")
     rp.set_defaults(func=_cmd_repair)
+
+    u = sub.add_parser("uv", help="cut the worst distortion of an OBJ's UV map, keeping it injective (paper §7.4)")
+    u.add_argument("input", help="OBJ with texture coordinates (vt) on every face (or data:minmax/withUV/...)")
+    u.add_argument("-o", "--output", required=True, help="OBJ to write: the input with only its vt lines changed")
+    u.add_argument("--p", type=float, default=10.0, help="p of the p-norm symmetric Dirichlet energy (1: plain SD)")
+    u.add_argument("--steps", type=int, default=200, help="step cap (it stops after a one-iteration step)")
+    u.add_argument("--dhat", type=float, default=1e-3, help="contact distance in UV units")
+    u.add_argument("--youngs-modulus", type=float, default=2e4)
+    u.add_argument("--newton-tol", type=float, default=1e-3)
+    u.add_argument("--preserve-overlaps", action="store_true", help="run on an overlapping layout, adding none")
+    u.add_argument("--overwrite", action="store_true", help="allow OUTPUT to be the input file")
+    u.add_argument("--report", help="folder for report, pictures and stats (default: OUTPUT's stem + _uv)")
+    u.add_argument("--threads", type=int)
+    u.add_argument("--resume", action="store_true")
+    u.add_argument("-q", "--quiet", action="store_true")
+    u.set_defaults(func=_cmd_uv)
 
     c = sub.add_parser("check", help="report counts, closedness, inverted/degenerate elements, self-intersections")
     c.add_argument("meshes", nargs="+")

@@ -59,16 +59,3 @@ class PNormEnergy(ElasticEnergy):
     def exact_ratio_limit(self) -> float:
         """ρ_c: up to this distortion ratio Ψ̂/Ψ̂(I) the energy is exactly eq. 9 (beyond, its quadratic tail)."""
         return float(np.exp(LOG_CAP / self.power))
-
-
-def symmetric_dirichlet_distortion(F: np.ndarray) -> np.ndarray:
-    """Ψ_SD = ‖F‖²_F + ‖F⁻¹‖²_F per element (m,) for F (m, d, d): the distortion the paper reports (2d is an
-    isometry: 4 for triangles, 6 for tets); +inf where det F ≤ 0."""
-    F = np.asarray(F, dtype=np.float64)
-    out = np.full(F.shape[0], np.inf)
-    if F.shape[0] == 0:
-        return out
-    ok = np.linalg.det(F) > 0
-    Fi = np.linalg.inv(F[ok])
-    out[ok] = np.einsum("mij,mij->m", F[ok], F[ok]) + np.einsum("mij,mij->m", Fi, Fi)
-    return out

@@ -15,8 +15,8 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    around a bone handle) the gain κ/(K + 2κ) is small but grows with every doubling, whereas against contact
    the barrier stiffens as the gap closes and the gains shrink. Blocked targets are also detected away
    from convergence: when ``stall_iterations`` (30) Newton iterates whose steps CCD cut bring the worst bound
-   vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held where they are
-   and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
+   vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held
+   where they are and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
    then continues to convergence.
@@ -228,7 +228,12 @@ class DirichletTargets:
         if self._penalty_on:
             pen = float(dist[self._dof].max())
             gain = None if self._last_residual is None else 1.0 - pen / self._last_residual
-            if gain is not None and gain < self.min_progress and self._last_gain is not None and gain <= self._last_gain:
+            if (
+                gain is not None
+                and gain < self.min_progress
+                and self._last_gain is not None
+                and gain <= self._last_gain
+            ):
                 pass  # doublings barely bring the handles closer, and less and less: blocked (stiffening crushes gaps)
             elif self.kappa < self.kappa_max:
                 self._last_gain = gain

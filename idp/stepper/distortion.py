@@ -12,21 +12,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from idp.energies.pnorm import symmetric_dirichlet_distortion
+from idp.mesh.distortion import distortion_summary, symmetric_dirichlet_distortion
 
 if TYPE_CHECKING:  # annotations only
     from idp.stepper.system import Body
-
-
-def distortion_summary(psi: np.ndarray, weights: np.ndarray) -> dict[str, float]:
-    """worst, 99th percentile, weighted mean and median of per-element distortions (weights: rest volumes)."""
-    finite = np.isfinite(psi)
-    return {
-        "worst": float(psi.max(initial=0.0)),
-        "p99": float(np.percentile(psi, 99)) if psi.size else 0.0,
-        "mean": float(np.average(psi[finite], weights=weights[finite])) if finite.any() else float("inf"),
-        "median": float(np.median(psi)) if psi.size else 0.0,
-    }
 
 
 class DistortionMonitor:

@@ -25,7 +25,9 @@ DIMS = [2, 3]
 def _simplices(d: int, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``count`` separate, positively oriented, randomly shaped simplices."""
     rng = np.random.default_rng(seed)
-    X = np.vstack([np.vstack([np.zeros(d), np.eye(d)]) + 0.2 * rng.normal(size=(d + 1, d)) + 4.0 * i for i in range(count)])
+    X = np.vstack(
+        [np.vstack([np.zeros(d), np.eye(d)]) + 0.2 * rng.normal(size=(d + 1, d)) + 4.0 * i for i in range(count)]
+    )
     T = np.arange(count * (d + 1)).reshape(count, d + 1)
     Dm = np.transpose(X[T[:, 1:]] - X[T[:, :1]], (0, 2, 1))
     neg = np.linalg.det(Dm) < 0
