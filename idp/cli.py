@@ -1,4 +1,5 @@
-"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp uv``, ``idp check``, ``idp demo``, ``idp bench``."""
+"""Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp uv``, ``idp check``, ``idp demo``,
+``idp bench``."""
 
 from __future__ import annotations
 

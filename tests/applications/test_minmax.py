@@ -98,7 +98,7 @@ def test_a_mirrored_layout_is_handled(tmp_path: Path) -> None:
     lines = [f"vt {-float(ln.split()[1])!r} {ln.split()[2]}" if ln.startswith("vt ") else ln for ln in text.split("\n")]
     src = tmp_path / "mirror.obj"
     src.write_text("\n".join(lines))
-    res, report = run_uv(uv_scene(src, steps=40), tmp_path / "o.obj", progress=False)
+    _, report = run_uv(uv_scene(src, steps=40), tmp_path / "o.obj", progress=False)
     assert report["mirrored_input"] and report["after"]["worst"] < report["before"]["worst"]
     new = read_uv_obj(tmp_path / "o.obj")
     assert np.all(uv_signed_areas(new.uv, new.faces_uv) < 0)  # still mirrored, as the input, never flipped
@@ -120,7 +120,7 @@ def test_overlapping_charts_are_refused_unless_preserved(tmp_path: Path) -> None
     assert not (tmp_path / "o.obj").exists() and not (tmp_path / "o_uv").exists()
     assert main(["uv", str(src), "-o", str(tmp_path / "o.obj"), "-q"]) == EXIT_INPUT
     # kept as they are, and no new overlap is added
-    res, report = run_uv(uv_scene(src, steps=3, preserve_overlaps=True), tmp_path / "p.obj", progress=False)
+    _, report = run_uv(uv_scene(src, steps=3, preserve_overlaps=True), tmp_path / "p.obj", progress=False)
     assert report["overlapping_pairs_after"] == report["overlapping_pairs_before"] == 1
 
 
@@ -131,7 +131,7 @@ def test_bad_uv_input_gets_clear_errors_and_writes_nothing(tmp_path: Path) -> No
         run_uv(uv_scene(no_vt), tmp_path / "o.obj", progress=False)
     flat = tmp_path / "flat3d.obj"  # a zero-area 3D triangle: no rest metric
     flat.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
-    with pytest.raises(MeshError, match="(?i)area"):
+    with pytest.raises(MeshError, match=r"(?i)area"):
         run_uv(uv_scene(flat), tmp_path / "o.obj", progress=False)
     src = _write_cylinder(tmp_path / "cyl.obj", uv_scale=(2.0, 0.5))
     before = src.read_bytes()
