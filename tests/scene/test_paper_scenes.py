@@ -23,7 +23,20 @@ def test_paper_scene_builds(path):
     handles = [h for c in built.system.conditions for h in getattr(c, "handles", [])]
     flows = [c for c in built.system.conditions if getattr(c, "report_key", None) == "flow"]
     repairs = [c for c in built.system.conditions if getattr(c, "report_key", None) == "repair"]
-    assert handles or flows or repairs, "every paper scene here is driven by handles, a normal flow or a repair"
+    uv = built.uv_objects or {}
+    assert handles or flows or repairs or uv, "every paper scene is driven by handles, a flow, a repair or is a UV map"
+    if uv:  # Fig. 18: the stored layouts (manifest: vt 28,382 / 22,945, all UV triangles positive)
+        (obj,) = uv.values()
+        assert obj.mesh.uv.shape[0] in (28382, 22945) and not obj.mirrored
+        assert built.run.stop_after_single_iteration
+    counts = {
+        h.name.split(".")[-1]: len(h.select(built.system.x) if h.vertices is None else h.vertices) for h in handles
+    }
+    if path.stem.startswith("fig20_arm"):  # the manifest's bone cores: 35/31/2 V (arm10K), 23/20/1 V (arm_thicker)
+        want = {"arm10K": (35, 31, 2), "arm_thicker": (23, 20, 1)}["arm10K" if "arm10K" in path.stem else "arm_thicker"]
+        assert tuple(counts[n] for n in ("left_bone", "right_bone", "centre")) == want
+    if path.stem.startswith("fig19_circle"):  # relative size 0.01 on circle.obj: one vertex per handle
+        assert sorted(counts.values()) == [1, 1, 1, 1]
     if repairs:  # the mannequin: the manifest's head-and-neck box holds 6,348 vertices; 121 frames
         assert repairs[0].prescribed.size == 6348 and len(repairs[0].frames) == 121
         assert built.meta["input_intersecting_pairs"] > 0 and built.run.steps == 120
