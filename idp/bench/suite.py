@@ -94,6 +94,7 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         "fill_final": res.summary["fill_fraction"],
         "volume_ratio": (res.summary.get("flow") or {}).get("volume_ratio"),
         "repair": res.summary.get("repair"),  # animation repair: deviation, unchanged frames, crossings left
+        "distortion": res.summary.get("distortion"),  # min-max runs: worst / p99 / mean Ψ_SD at the end
         "certified_frames": sum(
             1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]
         ),
