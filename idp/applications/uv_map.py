@@ -120,7 +120,7 @@ def run_uv(
     extra = {
         "input": str(src),
         "output": str(out),
-        "p": scene.objects[0].material.power,
+        "p": uv_objects[0].material.power if uv_objects[0].material is not None else 1.0,
         "steps": summary["steps_run"],
         "stopped": summary["stopped"],
         "newton_iterations": summary["newton_iterations"],

@@ -118,7 +118,7 @@ class UVObject:
     metric_scale: float  # the 3D lengths' factor that makes the total 3D area equal the UV area
 
 
-def _load_uv_object(obj, i: int) -> tuple[VolumeMesh, UVObject]:
+def _load_uv_object(obj, i: int) -> tuple[Any, UVObject]:
     """The UV layout of an OBJ as a 2D triangle mesh (nodes = vt) and the rest metric of its 3D triangles."""
     from idp.mesh.uv_obj import orient_uv_mesh, read_uv_obj, uv_rest_frames, uv_signed_areas
 
