@@ -195,7 +195,9 @@ def _print_summary(result, out: Path) -> None:
     if s.get("repaired_sequence"):
         lines.append(f"output:             {s['repaired_sequence']} (report.md, report.json, stats.json in {out}/)")
     else:
-        lines.append(f"output:             {out}/ (obj/, vtu/, frames.pvd, stats.json, frames.png)")
+        names = ("obj", "vtu", "frames.pvd", "stats.json", "frames.png", "report.md", "report.json", "distortion.png")
+        present = [n + ("/" if (out / n).is_dir() else "") for n in names if (out / n).exists()]
+        lines.append(f"output:             {out}/ ({', '.join(present)})")
     print("\n".join(lines))
 
 

@@ -88,7 +88,7 @@ def run_uv(
     if len(uv_objects) != 1 or len(scene.objects) != 1:
         raise MeshError("run_uv: the scene must hold exactly one object, with uv = true")
     out = Path(out_obj)
-    src = Path(str(uv_objects[0].mesh))
+    src = Path(str(uv_objects[0].mesh))  # as given (may be data:...); the resolved path once built
     try:  # resolves data: paths, reads and checks the OBJ before anything is written
         built = build_scene(scene)
     except IntersectingInputError as exc:  # chart boundaries cross: say it in UV terms
