@@ -178,7 +178,8 @@ def write_plots(results: list[dict], out: Path) -> None:
     ax.set_xlabel("step")
     ax.set_ylabel("fill fraction (%)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # scenes without a cage (flows, repair, min-max) have no fill curve
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "fill_per_step.png", dpi=120)
     plt.close(fig)
