@@ -49,10 +49,15 @@ class StepConstraint(Protocol):
         ...
 
     def after_iterate(
-        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep, contact_limited: bool = False
+        self,
+        x: np.ndarray,
+        near_converged: bool,
+        feasible_step: FeasibleStep,
+        contact_limited: bool = False,
+        in_contact: bool = True,
     ) -> tuple[np.ndarray, bool]:
         """After an accepted iterate: (possibly snapped x, whether the objective changed); ``contact_limited``:
-        the iterate's step was cut by CCD."""
+        the iterate's step was cut by CCD; ``in_contact``: some contact pair is within d̂ at x."""
         ...
 
     @property

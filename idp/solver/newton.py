@@ -382,7 +382,10 @@ class StepSolver:
             self._check_iterate(x, it, res)
             changed = False
             if c is not None:
-                x_new, changed = c.after_iterate(x, converged, feasible, contact_limited=alpha_ccd < 1.0)
+                in_contact = ev is not None and ev.num_active > 0
+                x_new, changed = c.after_iterate(
+                    x, converged, feasible, contact_limited=alpha_ccd < 1.0, in_contact=in_contact
+                )
                 if x_new is not x:  # bound vertices snapped onto their targets (a feasible move)
                     x = x_new
                     ev = self._contact_eval(x, res)

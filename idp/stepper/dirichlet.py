@@ -13,7 +13,9 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    minimum distance 1e-10 with d̂ = 1e-3 and 200-iteration steps). A small gain that is larger than the one of
    the doubling before is not a block: against an elastic stiffness K far above κ_B (a stiff p-norm energy
    around a bone handle) the gain κ/(K + 2κ) is small but grows with every doubling, whereas against contact
-   the barrier stiffens as the gap closes and the gains shrink. Blocked targets are also detected away
+   the barrier stiffens as the gap closes and the gains shrink. Only contact blocks: with no contact pair within
+   d̂ (``in_contact`` false) κ_B keeps doubling up to its cap — a p = 10 energy stiffens like ρ⁹ around a
+   point handle and its gains shrink too, yet the paper meets those targets. Blocked targets are also detected away
    from convergence: when ``stall_iterations`` (30) Newton iterates whose steps CCD cut bring the worst bound
    vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held
    where they are and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
@@ -184,7 +186,12 @@ class DirichletTargets:
         return diag
 
     def after_iterate(
-        self, x: np.ndarray, near_converged: bool, feasible_step: FeasibleStep, contact_limited: bool = False
+        self,
+        x: np.ndarray,
+        near_converged: bool,
+        feasible_step: FeasibleStep,
+        contact_limited: bool = False,
+        in_contact: bool = True,
     ) -> tuple[np.ndarray, bool]:
         if self._met:
             return x, False
@@ -229,7 +236,8 @@ class DirichletTargets:
             pen = float(dist[self._dof].max())
             gain = None if self._last_residual is None else 1.0 - pen / self._last_residual
             if (
-                gain is not None
+                in_contact
+                and gain is not None
                 and gain < self.min_progress
                 and self._last_gain is not None
                 and gain <= self._last_gain

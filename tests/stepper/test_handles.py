@@ -139,6 +139,19 @@ def test_stalled_targets_are_frozen_where_they_are():
     assert bc.held_dofs()[0] and not bc.held_dofs()[1] and bc.penalty_value(x) == 0.0
 
 
+def test_without_contact_shrinking_gains_keep_doubling():
+    """Only contact blocks a target: with no pair within d̂, κ_B doubles on whatever the gains do."""
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, min_progress=0.1)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[1.0]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    for k in range(6):
+        x[0] = 0.5 + 0.001 * k  # gains of ~0.2 %, not growing
+        _, changed = bc.after_iterate(x, True, lambda x, P: 0.0, in_contact=False)
+        assert changed and not bc.settled, k
+    assert bc.doublings == 6
+
+
 def test_slow_newton_without_contact_is_not_taken_for_a_stall():
     """Iterates that CCD did not cut (Newton creeping towards the penalised minimum of a stiff energy) never
     freeze the handles: the §4.3 doubling near convergence decides."""
