@@ -206,13 +206,14 @@ class DirichletTargets:
                 return x, True
         if self._penalty_on and not near_converged:
             # stagnation: the penalty has not brought the worst handle min_progress closer for stall_iterations
-            # Newton iterates whose steps contact (CCD) cut; freeze the handles where they are. Iterates that
-            # nothing cut are Newton converging towards the penalised minimum (a stiff energy such as a high
-            # p-norm takes many): they neither count as stalled nor reset the count.
+            # Newton iterates whose steps CCD cut while some pair is within d̂; freeze the handles where they are.
+            # Other iterates are Newton converging towards the penalised minimum (a stiff energy such as a high
+            # p-norm takes many, and its overshooting steps may be cut by CCD far from any contact): they neither
+            # count as stalled nor reset the count.
             pen = float(dist[self._dof].max())
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
-            elif contact_limited:
+            elif contact_limited and in_contact:
                 self._stalled += 1
                 if self._stalled >= self.stall_iterations:
                     self._hold(met=False)

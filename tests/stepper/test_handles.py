@@ -160,8 +160,11 @@ def test_slow_newton_without_contact_is_not_taken_for_a_stall():
     bc.set_targets(np.array([0]), np.array([[1.0]]))
     x = bc.begin(x, lambda x, P: 0.0)
     x[0] = 0.5
-    for k in range(20):
-        assert bc.after_iterate(x, False, lambda x, P: 0.0) == (x, False), k
+    for k in range(20):  # nothing cut, or cut by CCD with no pair within d̂
+        assert bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=k % 2 == 1, in_contact=False) == (
+            x,
+            False,
+        ), k
         x[0] += 0.001
     assert not bc.settled and not bc.frozen and bc.penalty_value(x) > 0
     assert bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.doublings == 1
