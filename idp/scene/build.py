@@ -393,6 +393,7 @@ def build_scene(
             free_vertices=~pinned,
             kappa_initial=dc.kappa_initial,
             max_doublings=dc.max_doublings,
+            detect_blocked=dc.detect_blocked,
         )
         system.step_constraint = bc
         fixed_deformable = pinned.copy()

@@ -60,6 +60,7 @@ class DirichletTargets:
         min_progress: float = 0.1,
         kinematic_progress: float | None = None,
         stall_iterations: int = 30,
+        detect_blocked: bool = True,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
         optimises (default: those with mass); ``tolerance``: distance (scene units) under which a bound vertex
@@ -75,6 +76,7 @@ class DirichletTargets:
         self.kappa_max = self.kappa_initial * 2.0**max_doublings
         self.min_progress = float(min_progress)
         self.stall_iterations = int(stall_iterations)
+        self.detect_blocked = bool(detect_blocked)  # False: the paper's rule alone (κ_B doubles up to its cap)
         self.kinematic_progress = float(kinematic_progress) if kinematic_progress else 0.1 * self.tolerance
         self.kappa = self.kappa_initial
         self.vertices = np.zeros(0, dtype=np.int64)
@@ -213,7 +215,7 @@ class DirichletTargets:
             pen = float(dist[self._dof].max())
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
-            elif contact_limited and in_contact:
+            elif contact_limited and in_contact and self.detect_blocked:
                 self._stalled += 1
                 if self._stalled >= self.stall_iterations:
                     self._hold(met=False)
@@ -238,6 +240,7 @@ class DirichletTargets:
             gain = None if self._last_residual is None else 1.0 - pen / self._last_residual
             if (
                 in_contact
+                and self.detect_blocked
                 and gain is not None
                 and gain < self.min_progress
                 and self._last_gain is not None
