@@ -16,6 +16,9 @@ import numpy as np
 from idp.errors import MeshError
 from idp.mesh.types import SurfaceMesh
 
+# an OBJ index beyond int64 can never be in range (and numpy could not store it): refused where it is read
+_MAX_INDEX = int(np.iinfo(np.int64).max)
+
 
 def _fail(path: Path, lineno: int, msg: str) -> MeshError:
     return MeshError(f"{path}:{lineno}: {msg}")
@@ -61,6 +64,8 @@ def read_obj(path: str | os.PathLike) -> SurfaceMesh:
                     k = int(head)
                 except ValueError:
                     raise _fail(p, lineno, f"bad vertex index {tok!r} in face") from None
+                if k > _MAX_INDEX:
+                    raise _fail(p, lineno, f"face index {k} out of range")
                 if k > 0:
                     idx.append(k - 1)
                 elif k < 0:
