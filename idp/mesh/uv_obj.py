@@ -33,6 +33,7 @@ _DEGENERATE = 1e-12  # |cross(e1, e2)| below this times the longest squared edge
 _CCW_ERR = 3.4e-16  # Shewchuk's ccwerrboundA, (3 + 16ε)ε with ε = 2⁻⁵³, rounded up
 _CHUNK = 262_144  # candidate pairs tested at once by uv_overlaps
 _NO_VT = re.compile(rb"^[ \t\f\v]*vt[ \t\f\v]", re.MULTILINE)  # any vt line in a file (an error path only)
+_MAX_INDEX = int(np.iinfo(np.int64).max)  # an index beyond int64 is never in range (and numpy cannot hold it)
 
 
 @dataclass
@@ -74,6 +75,8 @@ def _index(tok: bytes, count: int, what: str, path: Path, lineno: int, corner: b
         k = int(tok)
     except ValueError:
         raise _fail(path, lineno, f"bad {what} index {_text(tok)!r} in face corner {_text(corner)!r}") from None
+    if k > _MAX_INDEX:
+        raise _fail(path, lineno, f"{what} index {k} out of range")
     if k > 0:
         return k - 1
     if k < 0:
