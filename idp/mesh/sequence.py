@@ -302,6 +302,9 @@ class NpzSequence(FrameSequence):
                     )
                 vertices = data["vertices"]
                 faces = data["faces"]
+                for key, value in (("vertices", vertices), ("faces", faces)):
+                    if not isinstance(value, np.ndarray):  # np.load gives a member without the .npy magic as bytes
+                        raise MeshError(f"{path}: {key} is not a .npy array (the zip member holds other data)")
         except MeshError:
             raise
         except Exception as exc:  # zipfile, pickle and format errors

@@ -22,9 +22,11 @@ from idp.mesh.types import SurfaceMesh, VolumeMesh
 # and slow refusals are bounded by the subprocess timeouts of test_fuzz_sizes.py instead.
 def fuzz(max_examples: int) -> settings:
     """Hypothesis settings of a fuzz test: ``max_examples`` random inputs (sized so the whole suite stays near a
-    minute on one core), no per-example deadline."""
+    minute on one core), times ``$IDP_FUZZ_SCALE`` (default 1; e.g. 20 for a longer hunt), no per-example
+    deadline."""
+    scale = float(os.environ.get("IDP_FUZZ_SCALE", "1"))
     return settings(
-        max_examples=max_examples,
+        max_examples=max(1, round(max_examples * scale)),
         deadline=None,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
     )
