@@ -183,9 +183,12 @@ def _walk(root: Any, loc: tuple[str | int, ...]) -> tuple[list[str | int], Any]:
 
 
 def _path_str(parts: list[str | int]) -> str:
+    """``objects[0].material.poisson_ratio``; a key that is not a bare word is quoted as in TOML
+    (``objects[0]."a.b"``), so an unknown key holding dots, ": " or a line break cannot blur the path or the
+    one-line-per-problem message."""
     out = ""
     for p in parts:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+        out += f"[{p}]" if isinstance(p, int) else (f".{_key(p)}" if out else _key(p))
     return out
 
 
