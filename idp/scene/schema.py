@@ -327,7 +327,7 @@ class EllipsoidSurfaceGen(_Generator):
     radii: PosVec3 = [0.5, 0.5, 0.5]
     center: Vec3 = [0.0, 0.0, 0.0]
     subdivisions: Annotated[int, Strict(), Field(ge=0, le=7)] = 4
-    noise: Annotated[float, Field(ge=0, lt=0.5, allow_inf_nan=False)] = 0.0
+    noise: Annotated[float, Strict(), Field(ge=0, lt=0.5, allow_inf_nan=False)] = 0.0
     smoothing: Annotated[int, Strict(), Field(ge=0)] = 0
     seed: Annotated[int, Strict(), Field(ge=0)] = 0
 

@@ -30,7 +30,7 @@ import pytest
 from fuzz.common import fuzz, mutated_bytes, tree
 from hypothesis import given
 from hypothesis import strategies as st
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
 from idp.errors import SceneError
 from idp.scene.load import load_scene, scene_from_dict
@@ -339,6 +339,80 @@ def test_committed_scenes_load(scene):
         load_scene(scene)
     except SceneError as exc:  # a paper scene needs the paper's data: then the message names the missing file
         assert "objects[0].mesh" in str(exc) or "repair.input" in str(exc), exc
+
+
+# ------------------------------------------------------------------------------------------------ strictness
+
+
+def _scalar_kind(tp: Any) -> tuple[str, int] | None:
+    """("bool" | "number", list depth) when annotation ``tp`` holds booleans or numbers (depth 0: the value itself,
+    1: a list of them, 2: a list of lists), else None."""
+    for m in _members(tp):
+        if m in (bool, int, float):
+            return ("bool" if m is bool else "number", 0)
+    for m in _members(tp):
+        if typing.get_origin(m) is list and typing.get_args(m):
+            inner = _scalar_kind(typing.get_args(m)[0])
+            if inner is not None:
+                return inner[0], inner[1] + 1
+    return None
+
+
+def _scalar_fields() -> list[tuple[str, str, str, int]]:
+    """(model, field, kind, list depth) for every field that holds booleans or numbers."""
+    out = []
+    for mname, model in MODELS.items():
+        for fname, field in model.model_fields.items():
+            kind = _scalar_kind(field.annotation)
+            if kind is not None:
+                out.append((mname, fname, *kind))
+    return out
+
+
+def _minimal(model: type[BaseModel]) -> dict[str, Any]:
+    """Just enough keys for ``model`` to validate (the required ones), so one field can be varied alone."""
+    filled: dict[str, dict[str, Any]] = {
+        "FlowConfig": {"beta": 0.1},
+        "RepairConfig": {"input": "x.npz"},
+        "RepairSelector": {"indices": [0]},
+        "SphereSpec": {"center": [0, 0, 0], "radius": 1.0},
+        "SelectionSpec": {"indices": [0]},
+        "MotionSpec": {"type": "translate", "velocity": [0, 0, 0]},
+        "HandleSpec": {"name": "h", "select": {"indices": [0]}, "motion": {"type": "translate"}},
+        "KinematicSpec": {"motion": {"type": "translate", "velocity": [0, 0, 0]}},
+        "Rotation": {"axis": [0, 0, 1], "degrees": 0.0},
+        "SceneObject": {"name": "o", "generate": {"shape": "ball"}},
+        "PlasticitySpec": {"yield_stress": 1.0},
+        "MaterialStageSpec": {"start": 1},
+        "RestScriptSpec": {"type": "bake", "step": 1},
+        "KeyframeSpec": {"step": 1},
+    }
+    return dict(filled.get(model.__name__, {}))
+
+
+@pytest.mark.parametrize("mname,fname,kind,depth", _scalar_fields(), ids=lambda v: str(v))
+def test_scalars_are_strict(mname, fname, kind, depth):
+    """A number or a boolean written as a string (alone or in a list) is an error naming the key, never silently
+    converted: the README's promise that TOML/JSON ``true`` or ``"10"`` is never a number."""
+    model = MODELS[mname]
+    if {str, Path} & set(_members(model.model_fields[fname].annotation)):
+        return  # the key also takes text (a name, a path)
+    texts = ["true", "yes", "1", "on"] if kind == "bool" else ["0", "1", "0.25", "2"]
+    values: list[Any] = list(texts)
+    if depth == 1:
+        values = [[t] * n for t in texts for n in (2, 3)]
+    elif depth == 2:
+        values = [[["0"] * n, ["1"] * n] for n in (2, 3)] + [[[t] * 3] for t in texts]
+    for value in values:
+        doc = {**_minimal(model), fname: value}
+        if fname in ("box", "sphere", "indices", "group"):  # a selection takes exactly one of these
+            doc = {k: v for k, v in doc.items() if k == fname or k not in ("box", "sphere", "indices", "group")}
+        try:
+            model.model_validate(doc)
+        except ValidationError as exc:
+            assert fname in str(exc), exc
+        else:
+            raise AssertionError(f"{mname}.{fname} = {value!r} was accepted")
 
 
 def test_scene_values_are_data_not_code(tmp_path, monkeypatch):
