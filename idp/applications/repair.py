@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from idp.errors import SceneError
+from idp.fs import is_file
 from idp.scene.repair_schema import REPAIR_DHAT
 from idp.scene.schema import Scene
 
@@ -49,7 +50,7 @@ def parse_selection(text: str) -> dict[str, Any]:
         raise SceneError(f"--fixed {text!r}: expected box:x0,y0,z0,x1,y1,z1, relbox:... or indices:i,j,k|FILE")
     if kind == "indices":
         src = Path(rest)
-        body = src.read_text() if src.is_file() else rest
+        body = src.read_text() if is_file(src) else rest
         try:
             idx = [int(t) for t in body.replace(",", " ").split()]
         except ValueError:

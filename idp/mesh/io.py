@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from idp.errors import MeshError
+from idp.fs import is_file, why
 from idp.mesh.obj import read_obj
 from idp.mesh.quality import signed_volumes
 from idp.mesh.surface import boundary_faces
@@ -216,8 +217,8 @@ def read_mesh(
     if kind not in _KINDS:
         raise MeshError(f"unknown mesh kind {kind!r}; expected one of {', '.join(_KINDS)}")
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh file not found: {p}")
+    if not is_file(p):
+        raise MeshError(f"mesh file not found: {p}{why(p)}")
     ext = p.suffix.lower()
 
     lines = np.zeros((0, 2), np.int64)

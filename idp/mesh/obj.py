@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from idp.errors import MeshError
+from idp.fs import is_file, why
 from idp.mesh.types import SurfaceMesh
 
 # an OBJ index beyond int64 can never be in range (and numpy could not store it): refused where it is read
@@ -27,8 +28,8 @@ def _fail(path: Path, lineno: int, msg: str) -> MeshError:
 def read_obj(path: str | os.PathLike) -> SurfaceMesh:
     """Read the triangle surface of an OBJ file; errors name the file and line number."""
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh file not found: {p}")
+    if not is_file(p):
+        raise MeshError(f"mesh file not found: {p}{why(p)}")
     try:
         text = p.read_text(encoding="utf-8", errors="replace")
     except OSError as exc:

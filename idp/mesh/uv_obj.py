@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from idp.errors import MeshError
+from idp.fs import is_file, why
 
 _LIST = 10  # how many offending triangles an error message names
 _DEGENERATE = 1e-12  # |cross(e1, e2)| below this times the longest squared edge: a triangle without area
@@ -117,8 +118,8 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     name the file and line.
     """
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh file not found: {p}")
+    if not is_file(p):
+        raise MeshError(f"mesh file not found: {p}{why(p)}")
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -394,8 +395,8 @@ def write_uv_obj(source: str | os.PathLike, out: str | os.PathLike, uv: np.ndarr
     if not np.isfinite(values).all():
         bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
         raise MeshError(f"UV coordinates for {dst} are not finite at {bad.size} vt(s), first {bad[:_LIST].tolist()}")
-    if not src.is_file():
-        raise MeshError(f"mesh file not found: {src}")
+    if not is_file(src):
+        raise MeshError(f"mesh file not found: {src}{why(src)}")
     if not overwrite and _same_file(src, dst):
         raise MeshError(f"{dst}: is the source OBJ itself; refusing to overwrite it (pass overwrite=True)")
     try:

@@ -16,6 +16,7 @@ from typing import Any, Union
 from pydantic import BaseModel, ValidationError
 
 from idp.errors import SceneError
+from idp.fs import is_dir, is_file, why
 from idp.paper_data import DATA_PREFIX, resolve_data_path
 from idp.scene.schema import MODELS, Scene
 
@@ -70,7 +71,10 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def _absolute(p: Path, base: Path) -> Path:
-    p = p.expanduser()
+    try:
+        p = p.expanduser()
+    except RuntimeError:  # ~user of an unknown user: kept as written, then reported as not found
+        pass
     return Path(os.path.normpath(p if p.is_absolute() else base / p))
 
 
@@ -107,14 +111,17 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
                 continue
         if ob.mesh is not None and scene.repair is None:
             ob.mesh = _absolute(ob.mesh, base)
-            sequence = ob.frame is not None and (ob.mesh.is_dir() or any(ch in str(ob.mesh) for ch in "*?["))
-            if not ob.mesh.is_file() and not sequence:  # a sequence folder or glob is checked when opened
-                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
+            sequence = ob.frame is not None and (is_dir(ob.mesh) or any(ch in str(ob.mesh) for ch in "*?["))
+            if not is_file(ob.mesh) and not sequence:  # a sequence folder or glob is checked when opened
+                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}{why(ob.mesh)}")
         for j, hd in enumerate(ob.handles):
             if hd.motion.file is not None:
                 hd.motion.file = _absolute(hd.motion.file, base)
-                if not hd.motion.file.is_file():
-                    missing.append(f"{source}: objects[{i}].handles[{j}].motion.file: file not found: {hd.motion.file}")
+                if not is_file(hd.motion.file):
+                    missing.append(
+                        f"{source}: objects[{i}].handles[{j}].motion.file: file not found: "
+                        f"{hd.motion.file}{why(hd.motion.file)}"
+                    )
     if missing:
         raise SceneError("\n".join(missing))
     if base_dir is not None:

@@ -141,3 +141,17 @@ def test_obj_index_beyond_int64(tmp_path, text):
     p.write_text(text)
     with pytest.raises(IdpError, match=r"out of range|refers before"):
         read_mesh(p)
+
+
+@pytest.mark.parametrize("name", ["x" * 5000 + ".obj", "x" * 5000 + "/m.vtk", "a\x00b.obj"])
+def test_paths_the_system_cannot_look_up(name):
+    """Regression: a name longer than the file system allows made Path.is_file() raise OSError (ENAMETOOLONG) in
+    every reader; now it is a MeshError naming the path and the system's reason."""
+    from idp.mesh.checks import check_mesh
+    from idp.mesh.sequence import open_sequence
+    from idp.mesh.uv_obj import read_uv_obj
+
+    for reader in (read_mesh, read_uv_obj, open_sequence):
+        with pytest.raises(IdpError, match="not found"):
+            reader(name)
+    assert check_mesh(name).kind == "unreadable"

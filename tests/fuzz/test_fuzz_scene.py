@@ -53,6 +53,7 @@ PATHS = [
     "data:",
     "data:/etc/passwd",
     "~/.ssh/id_rsa",
+    "~nosuchuser/m.obj",
     "",
     ".",
     "..",
@@ -413,6 +414,34 @@ def test_scalars_are_strict(mname, fname, kind, depth):
             assert fname in str(exc), exc
         else:
             raise AssertionError(f"{mname}.{fname} = {value!r} was accepted")
+
+
+# ------------------------------------------------------------------------------------------ nothing written
+
+
+@pytest.mark.parametrize("mesh", PATHS)
+def test_hostile_mesh_paths_never_write(tmp_path, monkeypatch, mesh):
+    """Mesh paths are only resolved and checked: loading names the missing file or accepts an existing one (it is
+    read as a mesh only when the scene is built), and never writes. ``output.dir`` outside the scene's folder is
+    resolved, not created."""
+    scene_dir, work = tmp_path / "scene", tmp_path / "cwd"
+    scene_dir.mkdir()
+    work.mkdir()
+    monkeypatch.chdir(work)
+    elsewhere = tmp_path / "elsewhere"
+    doc = {"output": {"dir": str(elsewhere)}, "objects": [{"name": "o", "mesh": mesh}]}
+    p = scene_dir / "s.json"
+    p.write_text(json.dumps(doc))
+    before = tree(tmp_path)
+    try:
+        scene = load_scene(p)
+    except SceneError as exc:
+        check_scene_error(exc, str(p), json.loads(p.read_text()))
+    else:
+        assert scene.output.dir == elsewhere
+        assert scene.objects[0].mesh is not None and Path(scene.objects[0].mesh).is_absolute()
+    assert tree(tmp_path) == before, "loading a scene wrote a file"
+    assert not elsewhere.exists()
 
 
 def test_scene_values_are_data_not_code(tmp_path, monkeypatch):
