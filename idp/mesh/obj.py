@@ -19,6 +19,9 @@ from idp.mesh.types import SurfaceMesh
 
 # an OBJ index beyond int64 can never be in range (and numpy could not store it): refused where it is read
 _MAX_INDEX = int(np.iinfo(np.int64).max)
+# No OBJ line may be longer (a vertex line is ~40 characters, a 10^4-corner polygon ~10^5): a longer line is refused
+# before it is split, so a hostile line costs one copy of its text, never a list of millions of tokens.
+MAX_LINE = 2**20
 
 
 def _fail(path: Path, lineno: int, msg: str) -> MeshError:
@@ -43,6 +46,8 @@ def read_obj(path: str | os.PathLike) -> SurfaceMesh:
     num_polygons = 0
     nv = 0
     for lineno, line in enumerate(text.splitlines(), start=1):
+        if len(line) > MAX_LINE:
+            raise _fail(p, lineno, f"line of {len(line)} characters, longer than the {MAX_LINE} an OBJ line may have")
         if not line or line[0] not in "vf":
             continue
         parts = line.split()

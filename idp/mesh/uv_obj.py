@@ -28,6 +28,7 @@ import numpy as np
 
 from idp.errors import MeshError
 from idp.fs import is_file, why
+from idp.mesh.obj import MAX_LINE
 
 _LIST = 10  # how many offending triangles an error message names
 _DEGENERATE = 1e-12  # |cross(e1, e2)| below this times the longest squared edge: a triangle without area
@@ -133,6 +134,8 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     f_t: list[int] = []
     f_line: list[int] = []
     for lineno, line in enumerate(data.splitlines(), start=1):
+        if len(line) > MAX_LINE:  # refused before it is split (see idp.mesh.obj.MAX_LINE)
+            raise _fail(p, lineno, f"line of {len(line)} bytes, longer than the {MAX_LINE} an OBJ line may have")
         parts = line.split()
         if not parts:
             continue
