@@ -53,21 +53,49 @@ def load_scene(path: str | Path) -> Scene:
     except (OSError, UnicodeDecodeError) as err:
         raise SceneError(f"{p}: cannot read scene file: {err}") from err
     data: Any
-    if ext == ".toml":
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as err:
-            raise SceneError(f"{p}: TOML syntax error: {err}") from err
-    else:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise SceneError(f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})") from err
+    try:
+        if ext == ".toml":
+            try:
+                data = tomllib.loads(text)
+            except tomllib.TOMLDecodeError as err:
+                raise SceneError(f"{p}: TOML syntax error: {err}") from err
+        else:
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as err:
+                raise SceneError(
+                    f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})"
+                ) from err
+    except RecursionError:  # the parsers recurse per nesting level
+        raise SceneError(
+            f"{p}: (top level): nested too deeply (more than {MAX_DEPTH} levels of tables and arrays)"
+        ) from None
+    except ValueError as err:  # an integer of more than 4300 digits (Python's int conversion limit)
+        raise SceneError(f"{p}: cannot read scene file: {err}") from None
     if not isinstance(data, dict):
         raise SceneError(f"{p}: the top level must be a table/object (got {type(data).__name__})")
     if "name" not in data:
         data = {"name": p.stem, **data}
     return scene_from_dict(data, base_dir=p.parent.absolute(), source=str(p))
+
+
+#: deepest nesting of tables and arrays a scene may have: the schema's deepest key,
+#: objects[i].handles[j].motion.keyframes[k].rotate.axis[l], is 8 levels down. Deeper documents are refused before
+#: validation, whose error messages (and pydantic) would otherwise recurse into them.
+MAX_DEPTH = 32
+
+
+def _too_deep(data: Any) -> list[str | int] | None:
+    """The key path of the first value nested more than MAX_DEPTH tables/arrays deep, or None (iterative)."""
+    stack: list[tuple[Any, list[str | int]]] = [(data, [])]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, dict | list):
+            if len(path) >= MAX_DEPTH:
+                return path
+            items = node.items() if isinstance(node, dict) else enumerate(node)
+            stack.extend((value, [*path, key]) for key, value in items)
+    return None
 
 
 def _absolute(p: Path, base: Path) -> Path:
@@ -87,6 +115,11 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
     """
     if not isinstance(data, dict):
         raise SceneError(f"{source}: the top level must be a table/object (got {type(data).__name__})")
+    deep = _too_deep(data)
+    if deep is not None:
+        raise SceneError(
+            f"{source}: {_path_str(deep)}: nested too deeply (more than {MAX_DEPTH} levels of tables and arrays)"
+        )
     try:
         scene = Scene.model_validate(data)
     except ValidationError as err:

@@ -473,3 +473,25 @@ def test_unknown_key_is_quoted(key):
         scene_from_dict(doc, source="scene")
     assert str(info.value) == f"scene: {json.dumps(key, ensure_ascii=False)}: unknown key"
     check_scene_error(info.value, "scene", doc)
+
+
+@pytest.mark.parametrize("depth", [33, 500, 990, 995])
+@pytest.mark.parametrize("where", ["objects", "zz", "name"])
+def test_deep_documents(tmp_path, depth, where):
+    """Regression: a JSON document nested ~990 deep parsed, then validation's error message (json.dumps of the
+    value) hit RecursionError; ~995 deep the parser did. Both are SceneErrors now, naming the key path."""
+    p = tmp_path / "s.json"
+    p.write_text(f'{{"{where}": ' + "[" * depth + "]" * depth + "}")
+    with pytest.raises(SceneError, match="nested too deeply") as info:
+        load_scene(p)
+    check_scene_error(info.value, str(p), json.loads(p.read_text()) if depth < 900 else None)
+
+
+@pytest.mark.parametrize("ext", [".toml", ".json"])
+def test_integer_with_5000_digits(tmp_path, ext):
+    """Regression: Python's 4300-digit limit on int() made the TOML/JSON parsers raise a bare ValueError."""
+    p = tmp_path / f"s{ext}"
+    big = "1" + "0" * 5000
+    p.write_text(f"[time]\nsteps = {big}\n" if ext == ".toml" else f'{{"time": {{"steps": {big}}}}}')
+    with pytest.raises(SceneError, match="4300 digits"):
+        load_scene(p)

@@ -148,6 +148,26 @@ def test_obj_single_50mb_line(long_lines, reader, name):
     assert result["peak_mb"] < 4 * LINE_MB, result  # the text and a copy of the line, no token list
 
 
+# ------------------------------------------------------------------------------------------------ scene nesting
+
+
+def _nested(kind: str, depth: int) -> str:
+    if kind == "json-array":
+        return '{"objects": ' + "[" * depth + "]" * depth + "}"
+    if kind == "json-object":
+        return '{"a": ' + '{"a": ' * depth + "1" + "}" * depth + "}"
+    if kind == "toml-array":
+        return "a = " + "[" * depth + "]" * depth + "\n"
+    return "a = " + "{b = " * depth + "1" + "}" * depth + "\n"  # toml inline tables
+
+
+@pytest.mark.parametrize("kind", ["json-array", "json-object", "toml-array", "toml-table"])
+def test_scene_nested_1e5_deep(tmp_path, kind):
+    p = tmp_path / ("s.json" if kind.startswith("json") else "s.toml")
+    p.write_text(_nested(kind, 10**5))
+    refused("scene", p, match="nested too deeply")
+
+
 # ---------------------------------------------------------------------------------------------------------- npz
 
 
