@@ -9,6 +9,7 @@ with the same one-line-per-problem message.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import math
 from pathlib import Path
@@ -546,8 +547,8 @@ class SceneObject(_Model):
         starts = [st.start for st in self.material_stages]
         if any(b <= a for a, b in itertools.pairwise(starts)):
             probs.append(("material_stages", f"start steps must increase strictly (got {starts})"))
-        names = [h.name for h in self.handles]
-        dup = sorted({n for n in names if names.count(n) > 1})
+        counts = collections.Counter(h.name for h in self.handles)  # linear: a file may list 10^5 handles
+        dup = sorted(n for n, c in counts.items() if c > 1)
         if dup:
             probs.append(("handles", f"duplicate handle name {dup[0]!r}"))
         if self.generate is not None:

@@ -168,6 +168,18 @@ def test_scene_nested_1e5_deep(tmp_path, kind):
     refused("scene", p, match="nested too deeply")
 
 
+def test_scene_1e5_handles(tmp_path):
+    """10^5 handles (a 10 MB JSON file): validated in linear time (duplicate names were found in quadratic time)."""
+    handles = [
+        {"name": f"h{i}", "select": {"indices": [0]}, "motion": {"type": "translate", "velocity": [0, 0, 0]}}
+        for i in range(10**5)
+    ]
+    handles.append(dict(handles[7]))
+    p = tmp_path / "s.json"
+    p.write_text(json.dumps({"objects": [{"name": "o", "generate": {"shape": "ball"}, "handles": handles}]}))
+    refused("scene", p, match="duplicate handle name 'h7'")
+
+
 # ---------------------------------------------------------------------------------------------------------- npz
 
 
