@@ -156,7 +156,7 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
                         f"{hd.motion.file}{why(hd.motion.file)}"
                     )
     if missing:
-        raise SceneError("\n".join(missing))
+        raise SceneError(_problem_lines(missing, source))
     if base_dir is not None:
         scene.output.dir = _absolute(scene.output.dir, base)
     return scene
@@ -330,7 +330,19 @@ def format_validation_error(err: ValidationError, source: str) -> str:
             path = _join(path, "shape")
         msg = _message(e, last_model, parts[-1] if parts else None)
         lines.append(f"{source}: {path or '(top level)'}: {msg}")
-    return "\n".join(dict.fromkeys(lines))
+    return _problem_lines(lines, source)
+
+
+#: problems listed in one SceneError; the rest are counted (10^5 bad list entries are not 10^5 lines)
+MAX_PROBLEMS = 20
+
+
+def _problem_lines(lines: list[str], source: str) -> str:
+    unique = list(dict.fromkeys(lines))
+    if len(unique) > MAX_PROBLEMS:
+        more = len(unique) - MAX_PROBLEMS
+        unique = [*unique[:MAX_PROBLEMS], f"{source}: ... and {more} more problem{'s' if more > 1 else ''}"]
+    return "\n".join(unique)
 
 
 # ---------------------------------------------------------------------------------------------

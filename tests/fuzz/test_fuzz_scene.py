@@ -495,3 +495,17 @@ def test_integer_with_5000_digits(tmp_path, ext):
     p.write_text(f"[time]\nsteps = {big}\n" if ext == ".toml" else f'{{"time": {{"steps": {big}}}}}')
     with pytest.raises(SceneError, match="4300 digits"):
         load_scene(p)
+
+
+def test_many_problems_are_counted():
+    """Regression: 10^4 wrong list entries gave a SceneError of 10^4 lines; now the first 20 and a count."""
+    doc = {"objects": [{"name": f"o{i}", "mesh": f"missing{i}.obj", "scale": "x"} for i in range(5000)]}
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(doc, source="scene")
+    lines = str(info.value).splitlines()
+    assert len(lines) == 21 and lines[-1] == "scene: ... and 4980 more problems", lines[-3:]
+    check_scene_error(info.value, "scene", doc)
+    doc = {"objects": [{"name": f"o{i}", "mesh": f"missing{i}.obj"} for i in range(30)]}
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(doc, source="scene")
+    assert str(info.value).splitlines()[-1] == "scene: ... and 10 more problems"

@@ -180,6 +180,20 @@ def test_scene_1e5_handles(tmp_path):
     refused("scene", p, match="duplicate handle name 'h7'")
 
 
+def test_scene_1e5_bad_entries(tmp_path):
+    """10^5 wrong entries give a short message: the first problems and a count, not 10^5 lines."""
+    p = tmp_path / "s.json"
+    doc = {"objects": [{"name": "o", "generate": {"shape": "ball"}, "translate": ["x"] * 10**5}]}
+    p.write_text(json.dumps(doc))
+    result = refused("scene", p, match="objects[0].translate[0]: must be a number")
+    proc = subprocess.run(
+        [sys.executable, "-m", "idp", "run", str(p), "-o", str(tmp_path / "out")], capture_output=True, text=True
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert len(proc.stderr.splitlines()) <= 25 and "more problem" in proc.stderr, proc.stderr[-2000:]
+    assert result["outcome"] == "IdpError"
+
+
 # ---------------------------------------------------------------------------------------------------------- npz
 
 
