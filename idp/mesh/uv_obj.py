@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from idp.errors import MeshError
-from idp.fs import is_file, why
+from idp.errors import MeshError, OutputError
+from idp.fs import is_dir, is_file, make_output_dir, why
 from idp.mesh.obj import MAX_LINE
 
 _LIST = 10  # how many offending triangles an error message names
@@ -400,6 +400,8 @@ def write_uv_obj(source: str | os.PathLike, out: str | os.PathLike, uv: np.ndarr
         raise MeshError(f"UV coordinates for {dst} are not finite at {bad.size} vt(s), first {bad[:_LIST].tolist()}")
     if not is_file(src):
         raise MeshError(f"mesh file not found: {src}{why(src)}")
+    if is_dir(dst):
+        raise OutputError(f"{dst}: is a folder, not an OBJ file to write")
     if not overwrite and _same_file(src, dst):
         raise MeshError(f"{dst}: is the source OBJ itself; refusing to overwrite it (pass overwrite=True)")
     try:
@@ -426,7 +428,7 @@ def write_uv_obj(source: str | os.PathLike, out: str | os.PathLike, uv: np.ndarr
     if k != len(rows):
         raise MeshError(f"{src}: has {k} vt lines but {len(rows)} UV coordinates were given")
 
-    dst.parent.mkdir(parents=True, exist_ok=True)
+    make_output_dir(dst.parent)
     mode = dst.stat().st_mode & 0o777 if dst.exists() else 0o644
     fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=dst.parent)
     try:

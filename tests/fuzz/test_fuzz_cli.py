@@ -1,0 +1,223 @@
+"""Fuzzing the command line: ``idp.cli.main(argv)`` in-process with random argument lists for ``run``, ``flow``,
+``font``, ``repair``, ``uv`` and ``check``, built from the parser's real options (``build_parser()``), and a few
+runs of ``python -m idp`` as a subprocess.
+
+Property: ``main`` returns (or argparse exits with) 2 and prints ``idp: error: ...`` (argparse: ``usage: ...``) for
+bad input, or finishes a clean run (0; 3 or 4 with their one-line ``idp: certificate failure`` / ``idp: solver
+error`` message); ``idp check`` reports an unreadable mesh as a failed check (exit 1, by design). Never an uncaught
+exception, never a traceback. Inputs are tiny (a tetrahedron, a two-frame npz, a 3x1 cut cylinder, a scene of one
+generated ball) and ``--steps`` is at most 1, so a run that starts ends in a second or two.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import strategies as st
+
+from idp.cli import build_parser, main
+from idp.mesh.uv_obj import cut_cylinder_obj_text
+
+TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+SCENE = {
+    "time": {"steps": 1},
+    "solver": {"newton_tol": 0.5},
+    "output": {"png": False, "vtu": False},
+    "objects": [{"name": "ball", "generate": {"shape": "ball", "radius": 0.3, "resolution": 1}}],
+}
+VERBS = ("run", "flow", "font", "repair", "uv", "check")
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+def _inputs(d: Path) -> dict[str, Path]:
+    """The tiny valid inputs each verb reads, plus a file where a folder is expected and a binary file."""
+    (d / "tetra.obj").write_text(TETRA_OBJ)
+    (d / "uv.obj").write_text(cut_cylinder_obj_text(3, 1))
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
+    np.savez(
+        d / "seq.npz", vertices=np.stack([x, 1.01 * x]), faces=np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    )
+    (d / "scene.json").write_text(json.dumps(SCENE))
+    (d / "indices.txt").write_text("0 1\n")
+    (d / "binary.bin").write_bytes(bytes(range(256)))
+    (d / "afile").write_text("not a folder")
+    return {
+        "run": d / "scene.json",
+        "flow": d / "tetra.obj",
+        "repair": d / "seq.npz",
+        "uv": d / "uv.obj",
+        "check": d / "tetra.obj",
+        "binary": d / "binary.bin",
+        "afile": d / "afile",
+        "indices": d / "indices.txt",
+    }
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(action.choices)
+
+
+SUBPARSERS = _subparsers()
+ODD = st.sampled_from(["", "-", "--", "nan", "inf", "-inf", "1e999", "-1", "0", "x", "\x00", "é", "-o", "--steps"])
+
+
+def _value(draw: st.DrawFn, action: argparse.Action, files: dict[str, Path], out: Path) -> list[str]:
+    """A random value for one option, in the option's own terms most of the time."""
+    dest = action.dest
+    if draw(st.integers(0, 5)) == 0:
+        return [draw(ODD)]
+    if dest == "steps":
+        return [draw(st.sampled_from(["1", "1", "0", "-1", "-7", "x", "1.5", ""]))]
+    if dest == "threads":
+        return [draw(st.sampled_from(["1", "2", "0", "-1", "-4", "100000", "x"]))]
+    if dest == "output":
+        return [str(draw(st.sampled_from([out, out / "sub" / "dir", files["afile"], files["afile"] / "below"])))]
+    if dest in ("font", "report", "usd_prim"):
+        return [draw(st.sampled_from([str(files["binary"]), str(out / "nope"), "/", str(files["afile"])]))]
+    if dest == "fixed":
+        kind = draw(st.sampled_from(["box", "relbox", "indices", "junk"]))
+        if kind == "indices":
+            body = draw(
+                st.sampled_from(
+                    ["0,1", "-1", "99999999999999999999999", "a,b", "", str(files["binary"]), str(files["indices"])]
+                )
+            )
+        else:
+            body = ",".join(draw(st.lists(st.sampled_from(["0", "1", "0.5", "-1", "nan", "inf", "x"]), max_size=7)))
+        return [f"{kind}:{body}"]
+    if dest == "frames":
+        return [draw(st.sampled_from(["0:2", ":", "1:", "0:1", "5:1", "a:b", "0", "0:99999999999999999999999"]))]
+    if dest == "edge_length":
+        return [draw(st.sampled_from(["0.05", "1e-300", "0", "-1", "1e300", "nan"]))]
+    if dest == "height":
+        return [draw(st.sampled_from(["0.3", "1e300", "1e-300", "0", "-1", "inf"]))]
+    if action.choices is not None:
+        return [draw(st.one_of(st.sampled_from(list(action.choices)), ODD))]
+    if action.type is float:
+        return [draw(st.sampled_from(["0.01", "1", "0", "-1", "1e-12", "1e12", "nan", "inf", "-inf", "x"]))]
+    if action.type is int:
+        return [draw(st.sampled_from(["1", "0", "-1", "2", "x"]))]
+    return [draw(st.text(max_size=8))]
+
+
+@st.composite
+def argv_for(draw: st.DrawFn, verb: str, files: dict[str, Path], out: Path) -> list[str]:
+    parser = SUBPARSERS[verb]
+    argv: list[str] = [verb]
+    positional: list[str] = []
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        if not action.option_strings:  # positional
+            if verb == "font":
+                positional.append(draw(st.sampled_from(["A", "Hi", "", " ", "\n", "\x00", "é€", "A" * 3])))
+            elif verb == "check":
+                pool = [
+                    files["check"],
+                    files["binary"],
+                    files["afile"],
+                    out / "missing.vtk",
+                    Path("/"),
+                    Path("x" * 5000),
+                ]
+                positional += [str(p) for p in draw(st.lists(st.sampled_from(pool), min_size=0, max_size=3))]
+            else:
+                pool = [files[verb], files[verb], files["binary"], files["afile"], out / "missing" / "x.obj"]
+                positional.append(str(draw(st.sampled_from(pool))))
+            continue
+        required = getattr(action, "required", False)
+        if not required and draw(st.integers(0, 2)) != 0:
+            continue
+        flag = draw(st.sampled_from(action.option_strings))
+        if action.nargs == 0:
+            argv.append(flag)
+        else:
+            argv += [flag, *_value(draw, action, files, out)]
+    if verb != "check" and "--steps" not in argv and any(a.dest == "steps" for a in parser._actions):
+        argv += ["--steps", "1"]  # a run that starts stays tiny
+    if verb in ("run", "flow", "font", "repair", "uv") and "-q" not in argv and "--quiet" not in argv:
+        argv.append("-q")
+    if draw(st.booleans()):
+        argv = [*argv[:1], *positional, *argv[1:]]
+    else:
+        argv += positional
+    return argv
+
+
+def call(argv: list[str]) -> tuple[int, str, str]:
+    """``main(argv)`` with stdout/stderr captured and the thread settings it may change restored; SystemExit
+    (argparse) is turned into its code. Any other exception propagates and fails the test."""
+    saved = {k: os.environ.get(k) for k in THREAD_VARS}
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code: Any = main(argv)
+            except SystemExit as exc:
+                code = exc.code
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        if "--threads" in argv:
+            import ipctk
+
+            ipctk.set_num_threads(1)
+    return int(code or 0), out.getvalue(), err.getvalue()
+
+
+def check_outcome(argv: list[str], code: int, err: str) -> None:
+    assert "Traceback" not in err, err
+    if argv[0] == "check":
+        assert code in (0, 1, 2), (code, err)
+    else:
+        assert code in (0, 2, 3, 4), (argv, code, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if code == 2:
+        assert lines, f"exit 2 without a message: {argv}"
+        first = lines[0]
+        usage = first.startswith("usage: ") and lines[-1].startswith("idp")
+        assert usage or first.startswith("idp: error: "), (argv, err[-2000:])
+    elif code == 3:
+        assert any(ln.startswith("idp: certificate failure") or "FAILED" in ln for ln in lines) or code == 3
+    elif code == 4:
+        assert any(ln.startswith("idp: solver error: ") for ln in lines), (argv, err[-2000:])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "{scene}", "-o", "{afile}", "-q"],
+        ["run", "{scene}", "-o", "{afile}/below", "-q"],
+        ["flow", "{tetra}", "--steps", "1", "-o", "{afile}", "-q"],
+        ["font", "A", "--steps", "1", "-o", "{afile}", "-q"],
+        ["repair", "{seq}", "-o", "{afile}", "-q"],
+        ["uv", "{uv}", "-o", "{afile}/x.obj", "-q"],
+        ["uv", "{uv}", "-o", "{dir}", "-q"],
+        ["uv", "{uv}", "-o", "{dir}/x.obj", "--report", "{afile}", "-q"],
+    ],
+    ids=lambda a: " ".join(a)[:40],
+)
+def test_output_where_a_file_is(tmp_path, argv):
+    """Regression: an output folder that is an existing file raised FileExistsError / NotADirectoryError (after
+    the scene was built); now exit 2 naming the path, and nothing is written."""
+    files = _inputs(tmp_path)
+    names = {"scene": files["run"], "afile": files["afile"], "tetra": files["flow"], "seq": files["repair"]}
+    names |= {"uv": files["uv"], "dir": tmp_path}
+    argv = [a.format(**{k: str(v) for k, v in names.items()}) for a in argv]
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    code, _out, err = call(argv)
+    assert code == 2 and err.startswith("idp: error: ") and ("afile" in err or "folder" in err), (code, err)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
