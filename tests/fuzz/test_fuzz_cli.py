@@ -71,9 +71,26 @@ SUBPARSERS = _subparsers()
 ODD = st.sampled_from(["", "-", "--", "nan", "inf", "-inf", "1e999", "-1", "0", "x", "\x00", "é", "-o", "--steps"])
 
 
-def _value(draw: st.DrawFn, action: argparse.Action, files: dict[str, Path], out: Path) -> list[str]:
-    """A random value for one option, in the option's own terms most of the time."""
+CLEAN = {
+    "steps": "1",
+    "threads": "1",
+    "fixed": "relbox:0,0,0,0.5,0.5,0.5",
+    "frames": "0:2",
+    "edge_length": "0.03",
+    "height": "0.3",
+    "p": "2",
+}
+
+
+def _value(draw: st.DrawFn, action: argparse.Action, files: dict[str, Path], out: Path, clean: bool) -> list[str]:
+    """A random value for one option, in the option's own terms most of the time; a valid one when ``clean``."""
     dest = action.dest
+    if clean:
+        if action.choices is not None:
+            return [draw(st.sampled_from(list(action.choices)))]
+        if dest in ("output", "report"):
+            return [str(out / dest)]
+        return [CLEAN.get(dest, "0.01")]
     if draw(st.integers(0, 5)) == 0:
         return [draw(ODD)]
     if dest == "steps":
@@ -115,12 +132,14 @@ def argv_for(draw: st.DrawFn, verb: str, files: dict[str, Path], out: Path) -> l
     parser = SUBPARSERS[verb]
     argv: list[str] = [verb]
     positional: list[str] = []
+    clean = draw(st.integers(0, 2)) == 0  # every option valid: a run that starts (and must end cleanly)
     for action in parser._actions:
         if isinstance(action, argparse._HelpAction):
             continue
         if not action.option_strings:  # positional
             if verb == "font":
-                positional.append(draw(st.sampled_from(["A", "Hi", "", " ", "\n", "\x00", "é€", "A" * 3])))
+                texts = ["A", "Hi"] if clean else ["A", "Hi", "", " ", "\n", "\x00", "é€", "A" * 3]
+                positional.append(draw(st.sampled_from(texts)))
             elif verb == "check":
                 pool = [
                     files["check"],
@@ -133,18 +152,20 @@ def argv_for(draw: st.DrawFn, verb: str, files: dict[str, Path], out: Path) -> l
                 positional += [str(p) for p in draw(st.lists(st.sampled_from(pool), min_size=0, max_size=3))]
             else:
                 pool = [files[verb], files[verb], files["binary"], files["afile"], out / "missing" / "x.obj"]
-                positional.append(str(draw(st.sampled_from(pool))))
+                positional.append(str(files[verb] if clean else draw(st.sampled_from(pool))))
             continue
         required = getattr(action, "required", False)
-        if not required and draw(st.integers(0, 2)) != 0:
+        if not required and (draw(st.integers(0, 2)) != 0 or (clean and action.dest in ("font", "usd_prim", "resume"))):
             continue
         flag = draw(st.sampled_from(action.option_strings))
         if action.nargs == 0:
             argv.append(flag)
         else:
-            argv += [flag, *_value(draw, action, files, out)]
+            argv += [flag, *_value(draw, action, files, out, clean)]
     if verb != "check" and "--steps" not in argv and any(a.dest == "steps" for a in parser._actions):
         argv += ["--steps", "1"]  # a run that starts stays tiny
+    if verb == "font" and "--edge-length" not in argv:
+        argv += ["--edge-length", "0.03"]  # ~100 triangles a glyph at the default height, not ~1000
     if verb in ("run", "flow", "font", "repair", "uv") and "-q" not in argv and "--quiet" not in argv:
         argv.append("-q")
     if draw(st.booleans()):
@@ -154,18 +175,22 @@ def argv_for(draw: st.DrawFn, verb: str, files: dict[str, Path], out: Path) -> l
     return argv
 
 
-def call(argv: list[str]) -> tuple[int, str, str]:
+def call(argv: list[str], workdir: Path | None = None) -> tuple[int, str, str]:
     """``main(argv)`` with stdout/stderr captured and the thread settings it may change restored; SystemExit
     (argparse) is turned into its code. Any other exception propagates and fails the test."""
     saved = {k: os.environ.get(k) for k in THREAD_VARS}
     out, err = io.StringIO(), io.StringIO()
+    cwd = os.getcwd()
     try:
+        if workdir is not None:
+            os.chdir(workdir)  # relative paths (an output named "nan" or "-") land in the test's folder
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
                 code: Any = main(argv)
             except SystemExit as exc:
                 code = exc.code
     finally:
+        os.chdir(cwd)
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
@@ -218,6 +243,16 @@ def test_output_where_a_file_is(tmp_path, argv):
     names |= {"uv": files["uv"], "dir": tmp_path}
     argv = [a.format(**{k: str(v) for k, v in names.items()}) for a in argv]
     before = sorted(p.name for p in tmp_path.rglob("*"))
-    code, _out, err = call(argv)
+    code, _out, err = call(argv, tmp_path)
     assert code == 2 and err.startswith("idp: error: ") and ("afile" in err or "folder" in err), (code, err)
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize("value", ["-3", "0", "100000"])
+def test_threads_out_of_range(tmp_path, value):
+    """Regression: --threads -3 wrote NUMBA_NUM_THREADS=-3 into the environment (numba then refused to start) and
+    --threads 100000 crashed the process (SIGSEGV); both are usage errors now."""
+    files = _inputs(tmp_path)
+    code, _out, err = call(["run", str(files["run"]), "--threads", value, "-o", str(tmp_path / "o"), "-q"], tmp_path)
+    assert code == 2 and "argument --threads: must be between 1 and" in err, err
+    assert not (tmp_path / "o").exists()
