@@ -50,7 +50,12 @@ def parse_selection(text: str) -> dict[str, Any]:
         raise SceneError(f"--fixed {text!r}: expected box:x0,y0,z0,x1,y1,z1, relbox:... or indices:i,j,k|FILE")
     if kind == "indices":
         src = Path(rest)
-        body = src.read_text() if is_file(src) else rest
+        body = rest
+        if is_file(src):
+            try:
+                body = src.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:  # a binary or unreadable file
+                raise SceneError(f"--fixed {text!r}: cannot read the index file {src}: {exc}") from None
         try:
             idx = [int(t) for t in body.replace(",", " ").split()]
         except ValueError:

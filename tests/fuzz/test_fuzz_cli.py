@@ -256,3 +256,11 @@ def test_threads_out_of_range(tmp_path, value):
     code, _out, err = call(["run", str(files["run"]), "--threads", value, "-o", str(tmp_path / "o"), "-q"], tmp_path)
     assert code == 2 and "argument --threads: must be between 1 and" in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_fixed_index_file_not_text(tmp_path):
+    """Regression: repair --fixed indices:FILE with a binary FILE raised UnicodeDecodeError."""
+    files = _inputs(tmp_path)
+    argv = ["repair", str(files["repair"]), "--fixed", f"indices:{files['binary']}", "-o", str(tmp_path / "o"), "-q"]
+    code, _out, err = call(argv, tmp_path)
+    assert code == 2 and err.startswith("idp: error: --fixed") and "cannot read the index file" in err, err
