@@ -264,3 +264,11 @@ def test_fixed_index_file_not_text(tmp_path):
     argv = ["repair", str(files["repair"]), "--fixed", f"indices:{files['binary']}", "-o", str(tmp_path / "o"), "-q"]
     code, _out, err = call(argv, tmp_path)
     assert code == 2 and err.startswith("idp: error: --fixed") and "cannot read the index file" in err, err
+
+
+def test_fixed_index_beyond_int64(tmp_path):
+    """Regression: repair --fixed indices:99999999999999999999999 reached numpy as an OverflowError."""
+    files = _inputs(tmp_path)
+    argv = ["repair", str(files["repair"]), "--fixed", "indices:99999999999999999999999", "-o", str(tmp_path / "o")]
+    code, _out, err = call([*argv, "-q"], tmp_path)
+    assert code == 2 and "repair.prescribed[0].indices[0]: must be <= 9223372036854775807" in err, err

@@ -509,3 +509,19 @@ def test_many_problems_are_counted():
     with pytest.raises(SceneError) as info:
         scene_from_dict(doc, source="scene")
     assert str(info.value).splitlines()[-1] == "scene: ... and 10 more problems"
+
+
+@pytest.mark.parametrize(
+    "doc",
+    [
+        {"objects": [{"name": "o", "generate": {"shape": "ball"}, "fixed": [{"indices": [2**64]}]}]},
+        {"time": {"steps": 10**30}, "objects": [{"name": "o", "generate": {"shape": "ball"}}]},
+        {"objects": [{"name": "o", "mesh": "m.npz", "kind": "shell", "frame": 2**63}]},
+    ],
+)
+def test_integers_are_64_bit(doc):
+    """Regression: integers are 64-bit as in the TOML specification; a vertex index of 2^64 passed validation and
+    reached numpy as an OverflowError when the scene was built."""
+    with pytest.raises(SceneError, match="must be <= 9223372036854775807") as info:
+        scene_from_dict(doc, source="scene")
+    check_scene_error(info.value, "scene", doc)
