@@ -272,3 +272,16 @@ def test_fixed_index_beyond_int64(tmp_path):
     argv = ["repair", str(files["repair"]), "--fixed", "indices:99999999999999999999999", "-o", str(tmp_path / "o")]
     code, _out, err = call([*argv, "-q"], tmp_path)
     assert code == 2 and "repair.prescribed[0].indices[0]: must be <= 9223372036854775807" in err, err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--height", "1e300"], ["--height", "1e-300"], ["--edge-length", "1e-300"], ["--edge-length", "1e300"]],
+    ids=lambda a: " ".join(a),
+)
+def test_font_scale_limits(tmp_path, args):
+    """Regression: --height 1e300 and --edge-length 1e-300 raised GEOSException, --edge-length 1e300 OverflowError;
+    edge lengths far below height/400 took minutes to mesh. All are refused before meshing now."""
+    code, _out, err = call(["font", "A", *args, "--steps", "1", "-o", str(tmp_path / "o"), "-q"], tmp_path)
+    assert code == 2 and err.startswith("idp: error: ") and ("height must be" in err or "edge_length must" in err)
+    assert not (tmp_path / "o").exists()
