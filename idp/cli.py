@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 EXIT_INPUT, EXIT_CERTIFICATE, EXIT_SOLVER, EXIT_INTERRUPTED = 2, 3, 4, 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a command whose reader went away
 
 
 def _thread_count(text: str) -> int:
@@ -398,6 +399,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("idp: interrupted; finished steps are on disk (resume with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # stdout's reader went away ('idp check *.vtk | head'): no traceback, and none at exit either, when Python
+        # flushes stdout again, so its descriptor is pointed at /dev/null
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):
+            pass
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

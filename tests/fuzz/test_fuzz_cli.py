@@ -16,6 +16,8 @@ import contextlib
 import io
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -285,3 +287,20 @@ def test_font_scale_limits(tmp_path, args):
     code, _out, err = call(["font", "A", *args, "--steps", "1", "-o", str(tmp_path / "o"), "-q"], tmp_path)
     assert code == 2 and err.startswith("idp: error: ") and ("height must be" in err or "edge_length must" in err)
     assert not (tmp_path / "o").exists()
+
+
+def test_stdout_closed_early(tmp_path):
+    """Regression: 'idp check ... | head' (stdout's reader gone) ended in a BrokenPipeError traceback."""
+    _inputs(tmp_path)
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "idp", "check", *["tetra.obj"] * 50],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader goes away before idp writes
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141 and "Traceback" not in err, err
