@@ -294,7 +294,8 @@ class NpzSequence(FrameSequence):
 
     def __init__(self, path: Path) -> None:
         try:
-            with np.load(path, allow_pickle=False) as data:
+            # the file is opened here: np.load leaves its own handle open when the data is not an npz
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
                 missing = [key for key in ("vertices", "faces") if key not in data.files]
                 if missing:
                     raise MeshError(

@@ -9,9 +9,11 @@ unpickled is refused, and the file never appears.
 
 from __future__ import annotations
 
+import gc
 import io
 import pathlib
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -249,3 +251,18 @@ def test_member_without_npy_magic(tmp_path, raw, key):
     p.write_bytes(_npz(members))
     with pytest.raises(IdpError, match=f"{key} is not a .npy array"):
         open_sequence(p)
+
+
+@pytest.mark.parametrize("raw", [b"", b"PK\x03\x04 not a zip", b"\x93NUMPY garbage"])
+def test_refused_file_is_closed(tmp_path, raw):
+    """Regression: np.load(path) left its file handle open when the data was not an npz (a ResourceWarning)."""
+    p = tmp_path / "seq.npz"
+    p.write_bytes(raw)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            open_sequence(p)
+        except IdpError:
+            pass
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
