@@ -18,11 +18,14 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from fuzz.common import fuzz, mutated_bytes
+from hypothesis import event, given
 from hypothesis import strategies as st
 
 from idp.cli import build_parser, main
@@ -302,5 +305,68 @@ def test_stdout_closed_early(tmp_path):
     )
     assert proc.stdout is not None and proc.stderr is not None
     proc.stdout.close()  # the reader goes away before idp writes
-    err = proc.stderr.read().decode()
+    with proc.stderr:
+        err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141 and "Traceback" not in err, err
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    """The output folder of a one-step run of the tiny scene (its checkpoint.npz is what --resume reads)."""
+    d = tmp_path_factory.mktemp("resume")
+    files = _inputs(d)
+    code, _out, err = call(["run", str(files["run"]), "-o", str(d / "out"), "-q"], d)
+    assert code == 0, err
+    return d
+
+
+@st.composite
+def checkpoints(draw: st.DrawFn, valid: bytes) -> bytes:
+    """The run's checkpoint, byte-mutated, or rewritten with a key dropped or of the wrong shape / dtype."""
+    if draw(st.booleans()):
+        return draw(mutated_bytes(valid, max_ops=2))
+    with np.load(io.BytesIO(valid)) as data:
+        arrays = {k: data[k] for k in data.files}
+    key = draw(st.sampled_from(sorted(arrays)))
+    what = draw(st.sampled_from(["drop", "shape", "dtype", "nan", "huge"]))
+    if what == "drop":
+        del arrays[key]
+    elif what == "shape":
+        arrays[key] = np.zeros(draw(st.sampled_from([(), (0,), (3,), (2, 2), (5, 3, 1)])))
+    elif what == "dtype":
+        with np.errstate(over="ignore", invalid="ignore"):
+            arrays[key] = arrays[key].astype(draw(st.sampled_from(["U4", "c16", "bool", "int8", "f2"])))
+    elif what == "nan":
+        arrays[key] = np.full(arrays[key].shape, np.nan)
+    else:
+        arrays[key] = np.full(arrays[key].shape, 2**62, dtype=np.int64)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+@fuzz(25)
+@given(data=st.data())
+def test_resume_from_a_damaged_checkpoint(finished_run, data):
+    """--resume reads OUT/checkpoint.npz: a damaged one is refused with a message (exit 4, as for a checkpoint of
+    another scene) or resumed cleanly, never a traceback."""
+    valid = (finished_run / "out" / "checkpoint.npz").read_bytes()
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "out"
+        out.mkdir()
+        (out / "checkpoint.npz").write_bytes(data.draw(checkpoints(valid), label="checkpoint"))
+        argv = ["run", str(finished_run / "scene.json"), "-o", str(out), "--resume", "--steps", "2", "-q"]
+        code, _out, err = call(argv, Path(d))
+        event(f"exit {code}")
+        check_outcome(argv, code, err)
+
+
+@pytest.mark.parametrize("damage", [b"", b"garbage\x00\xff", b"PK\x03\x04"])
+def test_unreadable_checkpoint(finished_run, tmp_path, damage):
+    """Regression: --resume with an empty or non-npz checkpoint raised EOFError / ValueError from np.load."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "checkpoint.npz").write_bytes(damage)
+    argv = ["run", str(finished_run / "scene.json"), "-o", str(out), "--resume", "-q"]
+    code, _out, err = call(argv, tmp_path)
+    assert code == 4 and err.startswith("idp: solver error: checkpoint") and "unreadable" in err, err
