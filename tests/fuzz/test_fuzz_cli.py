@@ -226,6 +226,79 @@ def check_outcome(argv: list[str], code: int, err: str) -> None:
         assert any(ln.startswith("idp: solver error: ") for ln in lines), (argv, err[-2000:])
 
 
+def _random_arguments_test(verb: str, examples: int) -> Any:
+    @fuzz(examples)
+    @given(data=st.data())
+    def test(data: st.DataObject) -> None:
+        with tempfile.TemporaryDirectory() as d:
+            files = _inputs(Path(d))
+            argv = data.draw(argv_for(verb, files, Path(d) / "out"), label="argv")
+            code, _out, err = call(argv, Path(d))
+            event(f"exit {code}")
+            check_outcome(argv, code, err)
+
+    test.__name__ = f"test_cli_random_arguments_{verb}"
+    test.__doc__ = f"Random argument lists for idp {verb}: exit 2 with a message, or a clean run."
+    return test
+
+
+test_cli_random_arguments_run = _random_arguments_test("run", 15)
+test_cli_random_arguments_flow = _random_arguments_test("flow", 15)
+test_cli_random_arguments_font = _random_arguments_test("font", 12)
+test_cli_random_arguments_repair = _random_arguments_test("repair", 15)
+test_cli_random_arguments_uv = _random_arguments_test("uv", 15)
+test_cli_random_arguments_check = _random_arguments_test("check", 40)
+
+
+@fuzz(30)
+@given(data=st.data())
+def test_cli_mutated_inputs(data):
+    """The verbs' own input files, mutated (the readers' fuzzing, seen through the CLI)."""
+    verb = data.draw(st.sampled_from(["run", "flow", "repair", "uv", "check"]), label="verb")
+    with tempfile.TemporaryDirectory() as d:
+        files = _inputs(Path(d))
+        path = files[verb]
+        path.write_bytes(data.draw(mutated_bytes(path.read_bytes()), label="file"))
+        argv = [verb, str(path)]
+        if verb != "check":
+            argv += ["-o", str(Path(d) / "out.obj" if verb == "uv" else Path(d) / "out"), "--steps", "1", "-q"]
+        code, _out, err = call(argv, Path(d))
+        event(f"exit {code}")
+        check_outcome(argv, code, err)
+
+
+def _module(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    return subprocess.run(
+        [sys.executable, "-m", "idp", *args], capture_output=True, text=True, timeout=300, cwd=cwd, env=env
+    )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["check", "binary.bin", "tetra.obj"],
+        ["flow", "binary.bin", "--steps", "1"],
+        ["run", "scene.json", "--threads", "-3", "-o", "out"],
+        ["repair", "seq.npz", "--fixed", "indices:binary.bin"],
+        ["uv", "tetra.obj", "-o", "afile"],
+        ["nope"],
+    ],
+    ids=lambda a: " ".join(a)[:40],
+)
+def test_python_m_idp(tmp_path, args):
+    """A few runs as a real process: exit 2 (0/1 for check) and a one-line ``idp: error:`` (or usage) on stderr."""
+    _inputs(tmp_path)
+    proc = _module(*args, cwd=tmp_path)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    if args[0] == "check":
+        assert proc.returncode == 1 and "cannot read mesh file" in proc.stdout
+        return
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("idp: error: ") or (last.startswith("idp") and ": error: " in last), proc.stderr
+
+
 @pytest.mark.parametrize(
     "argv",
     [
