@@ -84,7 +84,7 @@ def _read(data: bytes, name: str, kind: str, validate: bool) -> None:
         assert_valid_mesh(mesh)
 
 
-@fuzz(120)
+@fuzz(300)
 @given(
     fmt=st.sampled_from(sorted(FORMATS)),
     shape=st.sampled_from(SHAPES),
@@ -99,7 +99,7 @@ def test_meshio_formats_mutated(fmt, shape, res, kind, validate, data):
     _read(mutated, name, kind, validate)
 
 
-@fuzz(120)
+@fuzz(300)
 @given(
     res=st.integers(1, 2),
     polygons=st.booleans(),

@@ -207,7 +207,7 @@ def _open(data: bytes) -> None:
             assert x.dtype == np.float64 and x.shape == (n, 3) and np.isfinite(x).all()
 
 
-@fuzz(300)
+@fuzz(500)
 @given(data=npz_files())
 def test_npz_mutated(data):
     _open(data)

@@ -41,7 +41,7 @@ def _read(data: bytes) -> None:
         assert_valid_uv_mesh(mesh)
 
 
-@fuzz(300)
+@fuzz(500)
 @given(
     segments=st.integers(3, 6),
     rings=st.integers(1, 2),
