@@ -526,3 +526,23 @@ def test_integers_are_64_bit(doc):
     with pytest.raises(SceneError, match="must be <= 9223372036854775807") as info:
         scene_from_dict(doc, source="scene")
     check_scene_error(info.value, "scene", doc)
+
+
+@pytest.mark.parametrize(
+    "kind,generate",
+    [
+        ("deformable", {"shape": "ball", "resolution": 10**5}),
+        ("deformable", {"shape": "tet_box", "resolution": [1, 1, 10**9]}),
+        ("deformable", {"shape": "ellipsoid", "resolution": 1000}),
+        ("shell", {"shape": "cylinder_surface", "segments": 10**9}),
+        ("shell", {"shape": "box_surface", "resolution": 10**5}),
+        ("shell", {"shape": "hourglass_surface", "rings": 10**8}),
+    ],
+)
+def test_generated_meshes_are_bounded(kind, generate):
+    """Regression: a generator resolution of 10^5 passed validation and asked numpy for petabytes when the scene
+    was built (a MemoryError traceback; 10^9 segments, 7.5 GB, would have been allocated on a large machine)."""
+    doc = {"objects": [{"name": "o", "kind": kind, "generate": generate}]}
+    with pytest.raises(SceneError, match=r"would make .* cells, more than 1e\+07") as info:
+        scene_from_dict(doc, source="scene")
+    check_scene_error(info.value, "scene", doc)
