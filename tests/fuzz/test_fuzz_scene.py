@@ -546,3 +546,19 @@ def test_generated_meshes_are_bounded(kind, generate):
     with pytest.raises(SceneError, match=r"would make .* cells, more than 1e\+07") as info:
         scene_from_dict(doc, source="scene")
     check_scene_error(info.value, "scene", doc)
+
+
+def test_noise_smoothing_is_bounded():
+    """Regression: ellipsoid_surface smoothing = 10^18 passed validation and looped 10^18 times when built."""
+    doc = {
+        "flow": {"beta": 0.1},
+        "objects": [
+            {
+                "name": "o",
+                "kind": "shell",
+                "generate": {"shape": "ellipsoid_surface", "noise": 0.1, "smoothing": 10**18},
+            }
+        ],
+    }
+    with pytest.raises(SceneError, match=r"objects\[0\]\.generate\.smoothing: must be <= 10000"):
+        scene_from_dict(doc, source="scene")
