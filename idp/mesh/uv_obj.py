@@ -28,13 +28,12 @@ import numpy as np
 
 from idp.errors import MeshError, OutputError
 from idp.fs import is_dir, is_file, make_output_dir, why
-from idp.mesh.obj import MAX_LINE
+from idp.mesh.obj import read_lines
 
 _LIST = 10  # how many offending triangles an error message names
 _DEGENERATE = 1e-12  # |cross(e1, e2)| below this times the longest squared edge: a triangle without area
 _CCW_ERR = 3.4e-16  # Shewchuk's ccwerrboundA, (3 + 16ε)ε with ε = 2⁻⁵³, rounded up
 _CHUNK = 262_144  # candidate pairs tested at once by uv_overlaps
-_NO_VT = re.compile(rb"^[ \t\f\v]*vt[ \t\f\v]", re.MULTILINE)  # any vt line in a file (an error path only)
 _MAX_INDEX = int(np.iinfo(np.int64).max)  # an index beyond int64 is never in range (and numpy cannot hold it)
 
 
@@ -121,11 +120,6 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     p = Path(path)
     if not is_file(p):
         raise MeshError(f"mesh file not found: {p}{why(p)}")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise MeshError(f"cannot read mesh file {p}: {exc}") from exc
-
     v_tok: list[bytes] = []
     v_line: list[int] = []
     t_tok: list[bytes] = []
@@ -133,9 +127,8 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     f_v: list[int] = []
     f_t: list[int] = []
     f_line: list[int] = []
-    for lineno, line in enumerate(data.splitlines(), start=1):
-        if len(line) > MAX_LINE:  # refused before it is split (see idp.mesh.obj.MAX_LINE)
-            raise _fail(p, lineno, f"line of {len(line)} bytes, longer than the {MAX_LINE} an OBJ line may have")
+    stream = read_lines(p, text=False)  # O(MAX_LINE) of the file at a time, see idp.mesh.obj.MAX_LINE
+    for lineno, line in stream:
         parts = line.split()
         if not parts:
             continue
@@ -164,7 +157,7 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
             for corner in corners:
                 fields = corner.split(b"/")
                 if len(fields) < 2 or not fields[1]:
-                    if not t_line and _NO_VT.search(data) is None:
+                    if not t_line and not any(rest.split()[:1] == [b"vt"] for _, rest in stream):
                         raise _no_vt(p)  # the file has no vt at all: say that, not which corner lacks one
                     raise _fail(
                         p,

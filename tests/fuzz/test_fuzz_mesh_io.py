@@ -155,3 +155,33 @@ def test_paths_the_system_cannot_look_up(name):
         with pytest.raises(IdpError, match="not found"):
             reader(name)
     assert check_mesh(name).kind == "unreadable"
+
+
+@fuzz(300)
+@given(
+    data=st.lists(
+        st.one_of(
+            st.sampled_from([b"\n", b"\r", b"\r\n", b"\x0b", b"\x0c", b"\x1c", b"\xc2\x85", b"\xe2\x80\xa8", b"\xff"]),
+            st.sampled_from([b"v 1 2 3", b"f 1 2 3", b"vt 0 1", b"# c", b"\xe2\x82\xac", b"\xe2", b"\x82\xac"]),
+            st.binary(max_size=5),
+        ),
+        max_size=40,
+    ).map(b"".join),
+    chunk=st.integers(1, 9),
+    text=st.booleans(),
+)
+def test_read_lines_is_splitlines(data, chunk, text):
+    """The OBJ readers' streaming line splitter gives exactly the lines of str/bytes.splitlines() of the whole file,
+    whatever the chunk boundaries (a \\r\\n or a UTF-8 sequence cut in two)."""
+    from idp.mesh import obj
+
+    saved = obj._CHUNK
+    obj._CHUNK = chunk
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            p = Path(d) / "m.obj"
+            p.write_bytes(data)
+            whole = data.decode("utf-8", errors="replace") if text else data
+            assert list(obj.read_lines(p, text=text)) == list(enumerate(whole.splitlines(), start=1))
+    finally:
+        obj._CHUNK = saved
