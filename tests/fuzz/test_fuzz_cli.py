@@ -443,3 +443,19 @@ def test_unreadable_checkpoint(finished_run, tmp_path, damage):
     argv = ["run", str(finished_run / "scene.json"), "-o", str(out), "--resume", "-q"]
     code, _out, err = call(argv, tmp_path)
     assert code == 4 and err.startswith("idp: solver error: checkpoint") and "unreadable" in err, err
+
+
+def test_scene_output_dir_only_without_o(tmp_path):
+    """A scene's output.dir (resolved against the scene's folder, wherever it points) is used only when 'idp run'
+    is given no -o; with -o nothing is written there. Loading alone never creates it."""
+    files = _inputs(tmp_path)
+    elsewhere = tmp_path / "elsewhere"
+    scene = json.loads(files["run"].read_text())
+    scene["output"]["dir"] = "elsewhere"
+    files["run"].write_text(json.dumps(scene))
+    code, _out, err = call(["run", str(files["run"]), "-o", str(tmp_path / "given"), "-q"], tmp_path)
+    assert code == 0, err
+    assert (tmp_path / "given" / "stats.json").is_file() and not elsewhere.exists()
+    code, _out, err = call(["run", str(files["run"]), "-q"], tmp_path / "given")  # another working folder
+    assert code == 0, err
+    assert (elsewhere / "stats.json").is_file()
