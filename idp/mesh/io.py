@@ -232,7 +232,8 @@ def read_mesh(
         tets = _gather(m, _TET_TYPES, 4)
         tris = _gather(m, _TRI_TYPES, 3)
         lines = _gather(m, _LINE_TYPES, 2)
-        groups = _point_groups(m, m.points.shape[0])
+        # a file without a POINTS section gives 0-d points: no groups, and _check_vertices names the shape
+        groups = _point_groups(m, np.shape(points)[0] if np.ndim(points) else 0)
     if tets.shape[0] == 0 and tris.shape[0] == 0 and lines.shape[0] == 0:
         raise MeshError(f"{p}: no usable cells (expected tetrahedra, triangles or 2D segments)")
     points = _check_vertices(points, p)

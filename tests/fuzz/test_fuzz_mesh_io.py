@@ -185,3 +185,16 @@ def test_read_lines_is_splitlines(data, chunk, text):
             assert list(obj.read_lines(p, text=text)) == list(enumerate(whole.splitlines(), start=1))
     finally:
         obj._CHUNK = saved
+
+
+def test_vtk_without_points(tmp_path):
+    """Regression: a legacy VTK file with cells but no POINTS section gave meshio 0-d points, and read_mesh an
+    IndexError (found at IDP_FUZZ_SCALE=10)."""
+    p = tmp_path / "m.vtk"
+    p.write_text(
+        "# vtk DataFile Version 5.1\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nCELLS 2 4\nOFFSETS vtktypeint64\n0\n4\n"
+        "CONNECTIVITY vtktypeint64\n0\n1\n2\n3\nCELL_TYPES 1\n10\n"
+    )
+    for validate in (True, False):
+        with pytest.raises(IdpError, match="vertex coordinates"):
+            read_mesh(p, validate=validate)
