@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from idp.errors import SceneError
+from idp.fs import check_output_dir, make_output_dir
 from idp.scene.build import BuiltScene, build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
 from idp.scene.schema import Scene
@@ -43,6 +44,7 @@ def simulate(
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
+    check_output_dir(out)  # a file where the folder should be: said now, not after building the scene
     if scene.repair is not None:  # an animation repair: frames in the input's own form, and its report
         from idp.applications.repair import run_repair
 
@@ -63,7 +65,7 @@ def run_built(
 ) -> RunResult:
     """Run a built scene into ``out`` (scene files, frames, stats, checkpoint): the one path every driver takes.
     ``writer``: the frame writer when not the default OBJ/VTU/PVD one (animation repair's sequence writer)."""
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
     resolved = resolved_scene_dict(scene)
     (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
     (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))

@@ -10,6 +10,20 @@ import sys
 from pathlib import Path
 
 EXIT_INPUT, EXIT_CERTIFICATE, EXIT_SOLVER, EXIT_INTERRUPTED = 2, 3, 4, 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a command whose reader went away
+
+
+def _thread_count(text: str) -> int:
+    """``--threads N``: 1 to the machine's CPU count. (0 or less made numba refuse to start in the next process
+    that read the environment; 10^5 threads crashed it.)"""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    cpus = os.cpu_count() or 1
+    if not 1 <= n <= cpus:
+        raise argparse.ArgumentTypeError(f"must be between 1 and {cpus} (the CPUs of this machine), got {n}")
+    return n
 
 
 def _set_threads(n: int | None) -> None:
@@ -248,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene file")
     r.add_argument("-o", "--output", help="output folder (default: the scene's output.dir)")
     r.add_argument("--steps", type=int, help="override time.steps")
-    r.add_argument("--threads", type=int, help="threads for kernels, contact and BLAS")
+    r.add_argument("--threads", type=_thread_count, help="threads for kernels, contact and BLAS")
     r.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     r.add_argument("--check-iterates", action="store_true", help="certify every Newton iterate, not only every frame")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -276,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run on a surface that already crosses itself, keeping (never adding) its crossings",
     )
     f.add_argument("-o", "--output", default="out/flow")
-    f.add_argument("--threads", type=int)
+    f.add_argument("--threads", type=_thread_count)
     f.add_argument("--resume", action="store_true")
     f.add_argument("-q", "--quiet", action="store_true")
     f.set_defaults(func=_cmd_flow)
@@ -291,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--steps", type=int, default=10)
     t.add_argument("--dhat", type=float, default=1e-3, help="contact distance (absolute)")
     t.add_argument("-o", "--output", default="out/font")
-    t.add_argument("--threads", type=int)
+    t.add_argument("--threads", type=_thread_count)
     t.add_argument("--resume", action="store_true")
     t.add_argument("-q", "--quiet", action="store_true")
     t.set_defaults(func=_cmd_font)
@@ -322,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--thickness", type=float, default=0.01)
     rp.add_argument("--bending", type=float, default=1.0, help="bending multiplier (0: membrane only)")
     rp.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex / dt to stop at (default 1e-3)")
-    rp.add_argument("--threads", type=int)
+    rp.add_argument("--threads", type=_thread_count)
     rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")
     rp.add_argument("-q", "--quiet", action="store_true")
     rp.set_defaults(func=_cmd_repair)
@@ -338,7 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--preserve-overlaps", action="store_true", help="run on an overlapping layout, adding none")
     u.add_argument("--overwrite", action="store_true", help="allow OUTPUT to be the input file")
     u.add_argument("--report", help="folder for report, pictures and stats (default: OUTPUT's stem + _uv)")
-    u.add_argument("--threads", type=int)
+    u.add_argument("--threads", type=_thread_count)
     u.add_argument("--resume", action="store_true")
     u.add_argument("-q", "--quiet", action="store_true")
     u.set_defaults(func=_cmd_uv)
@@ -350,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="grow a generated blob inside a generated hourglass cage")
     d.add_argument("-o", "--output", default="out/demo")
     d.add_argument("--steps", type=int)
-    d.add_argument("--threads", type=int)
+    d.add_argument("--threads", type=_thread_count)
     d.add_argument("-q", "--quiet", action="store_true")
     d.set_defaults(func=_cmd_demo)
 
@@ -358,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="the quick tier (under 15 minutes on 2 cores)")
     b.add_argument("--only", nargs="*", help="scene names to run")
     b.add_argument("-o", "--output", default="bench/results")
-    b.add_argument("--threads", type=int)
+    b.add_argument("--threads", type=_thread_count)
     b.add_argument("--steps", type=int, help="override every scene's step count (for quick looks)")
     b.set_defaults(func=_cmd_bench)
     return p
@@ -385,6 +399,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("idp: interrupted; finished steps are on disk (resume with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # stdout's reader went away ('idp check *.vtk | head'): no traceback, and none at exit either, when Python
+        # flushes stdout again, so its descriptor is pointed at /dev/null
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):
+            pass
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

@@ -29,3 +29,7 @@ class SolverError(IdpError):
 
 class FontError(IdpError):
     """A font file or a text to set in it is unusable (unreadable font, missing glyphs, empty text)."""
+
+
+class OutputError(IdpError):
+    """An output path is unusable: a file where a folder is needed, a folder where a file is, no permission."""

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from idp.applications.normal_flow import DEFAULT_DHAT, flow_scene
 from idp.applications.text_mesh import text_to_mesh
+from idp.fs import make_output_dir
 from idp.scene.schema import Scene
 
 #: cap height of the text in scene units: strokes of ≈ 0.04, like the paper's font meshes (Tao: 0.45 tall)
@@ -40,8 +41,7 @@ def text_flow_scene(
     import meshio
 
     mesh = text_to_mesh(text, font, height=height, edge_length=edge_length)  # FontError before any output
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_output_dir(out_dir)
     path = out / TEXT_MESH
     meshio.write(str(path), meshio.Mesh(mesh.vertices, [("triangle", mesh.faces)]), file_format="obj")
     return flow_scene(

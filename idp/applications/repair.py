@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from idp.errors import SceneError
+from idp.fs import check_output_dir, is_file, make_output_dir
 from idp.scene.repair_schema import REPAIR_DHAT
 from idp.scene.schema import Scene
 
@@ -49,7 +50,12 @@ def parse_selection(text: str) -> dict[str, Any]:
         raise SceneError(f"--fixed {text!r}: expected box:x0,y0,z0,x1,y1,z1, relbox:... or indices:i,j,k|FILE")
     if kind == "indices":
         src = Path(rest)
-        body = src.read_text() if src.is_file() else rest
+        body = rest
+        if is_file(src):
+            try:
+                body = src.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:  # a binary or unreadable file
+                raise SceneError(f"--fixed {text!r}: cannot read the index file {src}: {exc}") from None
         try:
             idx = [int(t) for t in body.replace(",", " ").split()]
         except ValueError:
@@ -197,13 +203,13 @@ def run_repair(
     from idp.scene.build import build_scene
     from idp.stepper.repair_frames import RepairFrames
 
-    out = Path(out_dir)
+    out = check_output_dir(out_dir)
     built = build_scene(scene, steps=steps)  # bad input (frames, selections, crossings) fails before any write
     cond = next(c for c in built.system.conditions if isinstance(c, RepairFrames))
     seq = cond.sequence
     fmt = seq.format if scene.repair.output == "same" else scene.repair.output
     seq_out = _output_path(out, seq, fmt)
-    out.mkdir(parents=True, exist_ok=True)
+    make_output_dir(out)
     frames = cond.frames[: built.run.steps + 1]  # a step cap (bench, --steps) repairs the first frames only
     writer = RepairFrameWriter(sequence_writer(seq_out, seq.faces, like=seq, format=fmt, frames=frames), cond)
     writer.last_step = len(frames) - 1

@@ -60,6 +60,11 @@ MIN_ANGLE_DEG = 30.0
 AREA_FACTOR = 1.5
 #: refinement never creates edges shorter than this fraction of the edge length
 MIN_EDGE_FRACTION = 0.25
+#: finest edge length as a fraction of ``height`` (10x the default's detail, ~10^5 triangles per glyph); finer
+#: meshes take minutes (height/1000: 7 s and 7·10^5 triangles for one "A") and 1e-300 breaks GEOS
+MAX_DETAIL = 400
+#: ``height`` range (scene units) in which GEOS's tolerances and squared lengths stay well inside float64
+HEIGHT_RANGE = (1e-6, 1e6)
 
 _LINE_BREAKS = "\n\r\u2028\u2029"
 
@@ -447,6 +452,13 @@ def text_to_mesh(
     edge = height * DEFAULT_EDGE_FRACTION if edge_length is None else float(edge_length)
     if not (math.isfinite(edge) and edge > 0):
         raise FontError(f"edge_length must be a positive finite number, got {edge_length!r}")
+    if not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
+        raise FontError(f"height must be between {HEIGHT_RANGE[0]:g} and {HEIGHT_RANGE[1]:g}, got {height!r}")
+    if not height / MAX_DETAIL <= edge <= height:
+        raise FontError(
+            f"edge_length must be between height/{MAX_DETAIL} = {height / MAX_DETAIL:.6g} and height = {height:.6g}, "
+            f"got {edge_length!r}"
+        )
     if not (math.isfinite(line_spacing) and line_spacing > 0):
         raise FontError(f"line_spacing must be a positive finite number, got {line_spacing!r}")
     loaded = _load_font(font)

@@ -13,7 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from idp.errors import IntersectingInputError, MeshError
+from idp.errors import IntersectingInputError, MeshError, OutputError
+from idp.fs import check_output_dir, is_dir
 from idp.scene.schema import Scene
 
 #: The authors' UV set-up (manifest, minmax/): E 2e4, ν 0.4, density 1000, d̂ = 1e-3; p = 10 for min-max.
@@ -88,6 +89,10 @@ def run_uv(
     if len(uv_objects) != 1 or len(scene.objects) != 1:
         raise MeshError("run_uv: the scene must hold exactly one object, with uv = true")
     out = Path(out_obj)
+    if is_dir(out):
+        raise OutputError(f"{out}: is a folder; the output of idp uv is an OBJ file")
+    check_output_dir(out.parent)
+    check_output_dir(report_dir if report_dir is not None else default_report_dir(out))
     src = Path(str(uv_objects[0].mesh))  # as given (may be data:...); the resolved path once built
     try:  # resolves data: paths, reads and checks the OBJ before anything is written
         built = build_scene(scene)

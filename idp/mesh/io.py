@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from idp.errors import MeshError
+from idp.fs import is_file, why
 from idp.mesh.obj import read_obj
 from idp.mesh.quality import signed_volumes
 from idp.mesh.surface import boundary_faces
@@ -216,8 +217,8 @@ def read_mesh(
     if kind not in _KINDS:
         raise MeshError(f"unknown mesh kind {kind!r}; expected one of {', '.join(_KINDS)}")
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh file not found: {p}")
+    if not is_file(p):
+        raise MeshError(f"mesh file not found: {p}{why(p)}")
     ext = p.suffix.lower()
 
     lines = np.zeros((0, 2), np.int64)
@@ -231,7 +232,8 @@ def read_mesh(
         tets = _gather(m, _TET_TYPES, 4)
         tris = _gather(m, _TRI_TYPES, 3)
         lines = _gather(m, _LINE_TYPES, 2)
-        groups = _point_groups(m, m.points.shape[0])
+        # a file without a POINTS section gives 0-d points: no groups, and _check_vertices names the shape
+        groups = _point_groups(m, np.shape(points)[0] if np.ndim(points) else 0)
     if tets.shape[0] == 0 and tris.shape[0] == 0 and lines.shape[0] == 0:
         raise MeshError(f"{p}: no usable cells (expected tetrahedra, triangles or 2D segments)")
     points = _check_vertices(points, p)

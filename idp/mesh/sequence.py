@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from idp.errors import MeshError
+from idp.fs import is_dir, is_file, why
 from idp.mesh.io import _read_meshio
 from idp.mesh.obj import read_obj
 
@@ -162,7 +163,7 @@ def _natural_key(p: Path) -> tuple[int, int, str]:
 
 def _obj_files(p: Path, spec: str) -> list[Path]:
     """The OBJ files of a folder or glob pattern in frame order (see the module docstring)."""
-    if p.is_dir():
+    if is_dir(p):
         files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() == ".obj"]
         if not files:
             raise MeshError(f"sequence folder {p} holds no .obj files")
@@ -262,8 +263,8 @@ class PvdSequence(FrameSequence):
 
     @staticmethod
     def _read(k: int, file: Path, label: str) -> tuple[np.ndarray, np.ndarray]:
-        if not file.is_file():
-            raise MeshError(f"frame {k} ({label}): file not found")
+        if not is_file(file):
+            raise MeshError(f"frame {k} ({label}): file not found{why(file)}")
         try:
             mesh = _read_meshio(file)
         except MeshError as exc:  # names the file
@@ -293,7 +294,8 @@ class NpzSequence(FrameSequence):
 
     def __init__(self, path: Path) -> None:
         try:
-            with np.load(path, allow_pickle=False) as data:
+            # the file is opened here: np.load leaves its own handle open when the data is not an npz
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
                 missing = [key for key in ("vertices", "faces") if key not in data.files]
                 if missing:
                     raise MeshError(
@@ -302,6 +304,9 @@ class NpzSequence(FrameSequence):
                     )
                 vertices = data["vertices"]
                 faces = data["faces"]
+                for key, value in (("vertices", vertices), ("faces", faces)):
+                    if not isinstance(value, np.ndarray):  # np.load gives a member without the .npy magic as bytes
+                        raise MeshError(f"{path}: {key} is not a .npy array (the zip member holds other data)")
         except MeshError:
             raise
         except Exception as exc:  # zipfile, pickle and format errors
@@ -424,9 +429,9 @@ def open_sequence(path: str | os.PathLike, *, usd_prim: str | None = None) -> Fr
     p = Path(spec)
     if usd_prim is not None and p.suffix.lower() not in USD_SUFFIXES:
         raise MeshError(f"usd_prim is for USD files, not {p}")
-    if p.is_dir():
+    if is_dir(p):
         return ObjSequence(p, _obj_files(p, spec))
-    if p.is_file():
+    if is_file(p):
         ext = p.suffix.lower()
         if ext == ".pvd":
             return PvdSequence(p)
@@ -441,7 +446,7 @@ def open_sequence(path: str | os.PathLike, *, usd_prim: str | None = None) -> Fr
         )
     if _GLOB_CHARS.search(spec):
         return ObjSequence(p, _obj_files(p, spec))
-    raise MeshError(f"sequence not found: {p}")
+    raise MeshError(f"sequence not found: {p}{why(p)}")
 
 
 def check_all_frames(seq: FrameSequence) -> None:

@@ -26,13 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
-from idp.errors import MeshError
+from idp.errors import MeshError, OutputError
+from idp.fs import is_dir, is_file, make_output_dir, why
+from idp.mesh.obj import read_lines
 
 _LIST = 10  # how many offending triangles an error message names
 _DEGENERATE = 1e-12  # |cross(e1, e2)| below this times the longest squared edge: a triangle without area
 _CCW_ERR = 3.4e-16  # Shewchuk's ccwerrboundA, (3 + 16ε)ε with ε = 2⁻⁵³, rounded up
 _CHUNK = 262_144  # candidate pairs tested at once by uv_overlaps
-_NO_VT = re.compile(rb"^[ \t\f\v]*vt[ \t\f\v]", re.MULTILINE)  # any vt line in a file (an error path only)
+_MAX_INDEX = int(np.iinfo(np.int64).max)  # an index beyond int64 is never in range (and numpy cannot hold it)
 
 
 @dataclass
@@ -74,6 +76,8 @@ def _index(tok: bytes, count: int, what: str, path: Path, lineno: int, corner: b
         k = int(tok)
     except ValueError:
         raise _fail(path, lineno, f"bad {what} index {_text(tok)!r} in face corner {_text(corner)!r}") from None
+    if k > _MAX_INDEX:
+        raise _fail(path, lineno, f"{what} index {k} out of range")
     if k > 0:
         return k - 1
     if k < 0:
@@ -114,13 +118,8 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     name the file and line.
     """
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh file not found: {p}")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise MeshError(f"cannot read mesh file {p}: {exc}") from exc
-
+    if not is_file(p):
+        raise MeshError(f"mesh file not found: {p}{why(p)}")
     v_tok: list[bytes] = []
     v_line: list[int] = []
     t_tok: list[bytes] = []
@@ -128,7 +127,8 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
     f_v: list[int] = []
     f_t: list[int] = []
     f_line: list[int] = []
-    for lineno, line in enumerate(data.splitlines(), start=1):
+    stream = read_lines(p, text=False)  # O(MAX_LINE) of the file at a time, see idp.mesh.obj.MAX_LINE
+    for lineno, line in stream:
         parts = line.split()
         if not parts:
             continue
@@ -157,7 +157,7 @@ def read_uv_obj(path: str | os.PathLike) -> UVMesh:
             for corner in corners:
                 fields = corner.split(b"/")
                 if len(fields) < 2 or not fields[1]:
-                    if not t_line and _NO_VT.search(data) is None:
+                    if not t_line and not any(rest.split()[:1] == [b"vt"] for _, rest in stream):
                         raise _no_vt(p)  # the file has no vt at all: say that, not which corner lacks one
                     raise _fail(
                         p,
@@ -391,8 +391,10 @@ def write_uv_obj(source: str | os.PathLike, out: str | os.PathLike, uv: np.ndarr
     if not np.isfinite(values).all():
         bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
         raise MeshError(f"UV coordinates for {dst} are not finite at {bad.size} vt(s), first {bad[:_LIST].tolist()}")
-    if not src.is_file():
-        raise MeshError(f"mesh file not found: {src}")
+    if not is_file(src):
+        raise MeshError(f"mesh file not found: {src}{why(src)}")
+    if is_dir(dst):
+        raise OutputError(f"{dst}: is a folder, not an OBJ file to write")
     if not overwrite and _same_file(src, dst):
         raise MeshError(f"{dst}: is the source OBJ itself; refusing to overwrite it (pass overwrite=True)")
     try:
@@ -419,7 +421,7 @@ def write_uv_obj(source: str | os.PathLike, out: str | os.PathLike, uv: np.ndarr
     if k != len(rows):
         raise MeshError(f"{src}: has {k} vt lines but {len(rows)} UV coordinates were given")
 
-    dst.parent.mkdir(parents=True, exist_ok=True)
+    make_output_dir(dst.parent)
     mode = dst.stat().st_mode & 0o777 if dst.exists() else 0o644
     fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=dst.parent)
     try:

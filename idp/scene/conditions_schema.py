@@ -19,7 +19,7 @@ import itertools
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, Strict, model_validator
 
 from idp.scene.schema_base import (
     Bool,
@@ -201,7 +201,7 @@ class DirichletConfig(_Model):
     tolerance: PosFloat = 1e-2  # × d̂ (or absolute with tolerance_mode = "absolute")
     tolerance_mode: Literal["dhat", "absolute"] = "dhat"
     kappa_initial: PosFloat = 1e4
-    max_doublings: Annotated[int, Field(ge=0, le=60)] = 24
+    max_doublings: Annotated[int, Strict(), Field(ge=0, le=60)] = 24
     # stop pushing a handle that contact holds back (a doubling of κ_B that gains < 10 % and less than the one
     # before; 30 CCD-cut iterates in contact without 10 % progress) instead of crushing the gap; false: the
     # paper's rule alone, κ_B doubles until the targets are met or it reaches 2^max_doublings × kappa_initial
@@ -214,8 +214,8 @@ class PlasticitySpec(_Model):
     like Young's modulus; the engine's Frobenius-norm radius is √(2/3)·σ_Y) and linear isotropic ``hardening``
     H; the return mapping runs at the start of every step."""
 
-    yield_stress: Annotated[float, Field(gt=0, allow_inf_nan=False)]
-    hardening: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    yield_stress: Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)]
+    hardening: Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)] = 0.0
 
 
 class MaterialStageSpec(_Model):

@@ -16,6 +16,7 @@ from typing import Any, Union
 from pydantic import BaseModel, ValidationError
 
 from idp.errors import SceneError
+from idp.fs import is_dir, is_file, why
 from idp.paper_data import DATA_PREFIX, resolve_data_path
 from idp.scene.schema import MODELS, Scene
 
@@ -52,16 +53,25 @@ def load_scene(path: str | Path) -> Scene:
     except (OSError, UnicodeDecodeError) as err:
         raise SceneError(f"{p}: cannot read scene file: {err}") from err
     data: Any
-    if ext == ".toml":
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as err:
-            raise SceneError(f"{p}: TOML syntax error: {err}") from err
-    else:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise SceneError(f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})") from err
+    try:
+        if ext == ".toml":
+            try:
+                data = tomllib.loads(text)
+            except tomllib.TOMLDecodeError as err:
+                raise SceneError(f"{p}: TOML syntax error: {err}") from err
+        else:
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as err:
+                raise SceneError(
+                    f"{p}: JSON syntax error: {err.msg} (at line {err.lineno}, column {err.colno})"
+                ) from err
+    except RecursionError:  # the parsers recurse per nesting level
+        raise SceneError(
+            f"{p}: (top level): nested too deeply (more than {MAX_DEPTH} levels of tables and arrays)"
+        ) from None
+    except ValueError as err:  # an integer of more than 4300 digits (Python's int conversion limit)
+        raise SceneError(f"{p}: cannot read scene file: {err}") from None
     if not isinstance(data, dict):
         raise SceneError(f"{p}: the top level must be a table/object (got {type(data).__name__})")
     if "name" not in data:
@@ -69,8 +79,30 @@ def load_scene(path: str | Path) -> Scene:
     return scene_from_dict(data, base_dir=p.parent.absolute(), source=str(p))
 
 
+#: deepest nesting of tables and arrays a scene may have: the schema's deepest key,
+#: objects[i].handles[j].motion.keyframes[k].rotate.axis[l], is 8 levels down. Deeper documents are refused before
+#: validation, whose error messages (and pydantic) would otherwise recurse into them.
+MAX_DEPTH = 32
+
+
+def _too_deep(data: Any) -> list[str | int] | None:
+    """The key path of the first value nested more than MAX_DEPTH tables/arrays deep, or None (iterative)."""
+    stack: list[tuple[Any, list[str | int]]] = [(data, [])]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, dict | list):
+            if len(path) >= MAX_DEPTH:
+                return path
+            items = node.items() if isinstance(node, dict) else enumerate(node)
+            stack.extend((value, [*path, key]) for key, value in items)
+    return None
+
+
 def _absolute(p: Path, base: Path) -> Path:
-    p = p.expanduser()
+    try:
+        p = p.expanduser()
+    except RuntimeError:  # ~user of an unknown user: kept as written, then reported as not found
+        pass
     return Path(os.path.normpath(p if p.is_absolute() else base / p))
 
 
@@ -83,6 +115,11 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
     """
     if not isinstance(data, dict):
         raise SceneError(f"{source}: the top level must be a table/object (got {type(data).__name__})")
+    deep = _too_deep(data)
+    if deep is not None:
+        raise SceneError(
+            f"{source}: {_path_str(deep)}: nested too deeply (more than {MAX_DEPTH} levels of tables and arrays)"
+        )
     try:
         scene = Scene.model_validate(data)
     except ValidationError as err:
@@ -107,16 +144,19 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
                 continue
         if ob.mesh is not None and scene.repair is None:
             ob.mesh = _absolute(ob.mesh, base)
-            sequence = ob.frame is not None and (ob.mesh.is_dir() or any(ch in str(ob.mesh) for ch in "*?["))
-            if not ob.mesh.is_file() and not sequence:  # a sequence folder or glob is checked when opened
-                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}")
+            sequence = ob.frame is not None and (is_dir(ob.mesh) or any(ch in str(ob.mesh) for ch in "*?["))
+            if not is_file(ob.mesh) and not sequence:  # a sequence folder or glob is checked when opened
+                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}{why(ob.mesh)}")
         for j, hd in enumerate(ob.handles):
             if hd.motion.file is not None:
                 hd.motion.file = _absolute(hd.motion.file, base)
-                if not hd.motion.file.is_file():
-                    missing.append(f"{source}: objects[{i}].handles[{j}].motion.file: file not found: {hd.motion.file}")
+                if not is_file(hd.motion.file):
+                    missing.append(
+                        f"{source}: objects[{i}].handles[{j}].motion.file: file not found: "
+                        f"{hd.motion.file}{why(hd.motion.file)}"
+                    )
     if missing:
-        raise SceneError("\n".join(missing))
+        raise SceneError(_problem_lines(missing, source))
     if base_dir is not None:
         scene.output.dir = _absolute(scene.output.dir, base)
     return scene
@@ -183,9 +223,12 @@ def _walk(root: Any, loc: tuple[str | int, ...]) -> tuple[list[str | int], Any]:
 
 
 def _path_str(parts: list[str | int]) -> str:
+    """``objects[0].material.poisson_ratio``; a key that is not a bare word is quoted as in TOML
+    (``objects[0]."a.b"``), so an unknown key holding dots, ": " or a line break cannot blur the path or the
+    one-line-per-problem message."""
     out = ""
     for p in parts:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
+        out += f"[{p}]" if isinstance(p, int) else (f".{_key(p)}" if out else _key(p))
     return out
 
 
@@ -287,7 +330,19 @@ def format_validation_error(err: ValidationError, source: str) -> str:
             path = _join(path, "shape")
         msg = _message(e, last_model, parts[-1] if parts else None)
         lines.append(f"{source}: {path or '(top level)'}: {msg}")
-    return "\n".join(dict.fromkeys(lines))
+    return _problem_lines(lines, source)
+
+
+#: problems listed in one SceneError; the rest are counted (10^5 bad list entries are not 10^5 lines)
+MAX_PROBLEMS = 20
+
+
+def _problem_lines(lines: list[str], source: str) -> str:
+    unique = list(dict.fromkeys(lines))
+    if len(unique) > MAX_PROBLEMS:
+        more = len(unique) - MAX_PROBLEMS
+        unique = [*unique[:MAX_PROBLEMS], f"{source}: ... and {more} more problem{'s' if more > 1 else ''}"]
+    return "\n".join(unique)
 
 
 # ---------------------------------------------------------------------------------------------

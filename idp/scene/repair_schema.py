@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from idp.scene.schema_base import NonNegInt, _Model, rule_error
+from idp.scene.schema_base import Bool, Float, NonNegInt, _Model, rule_error
 
 #: the authors' repair set-up (manifest, repair/): d̂ = 1e-2 absolute, dt = 0.04 (h = dt²)
 REPAIR_DHAT = 1e-2
@@ -53,8 +53,8 @@ class RepairSelector(_Model):
     """Vertices of the first frame that follow the input exactly: an axis-aligned ``box`` [lo, hi] (relative to
     the first frame's bounding box when ``relative``: 0 = min, 1 = max per axis) or an ``indices`` list."""
 
-    box: list[list[float]] | None = None
-    relative: bool = False
+    box: list[list[Float]] | None = None
+    relative: Bool = False
     indices: list[NonNegInt] | None = None
 
     @model_validator(mode="after")

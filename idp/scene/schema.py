@@ -9,6 +9,7 @@ with the same one-line-per-problem message.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import math
 from pathlib import Path
@@ -257,6 +258,22 @@ class _Generator(_Model):
     role: ClassVar[str]
     shape: str
 
+    #: most cells (tets, triangles or segments) a generator may make: ~2 GB of mesh arrays, far beyond the
+    #: paper's largest meshes; a resolution of 10^5 asked numpy for petabytes (a MemoryError traceback)
+    MAX_CELLS: ClassVar[int] = 10**7
+
+    def cells(self) -> int:
+        """How many cells (tets, triangles or segments) the generator makes, from its parameters."""
+        return 0
+
+    @model_validator(mode="after")
+    def _size(self) -> _Generator:
+        n = self.cells()
+        if n > self.MAX_CELLS:
+            key = next(k for k in ("resolution", "segments", "subdivisions") if k in type(self).model_fields)
+            raise rule_error([(key, f"'{self.shape}' would make {n:.3g} cells, more than {self.MAX_CELLS:.0e}")])
+        return self
+
     def params(self) -> dict[str, Any]:
         """Every generator parameter (all fields except ``shape``)."""
         return self.model_dump(exclude={"shape"})
@@ -272,6 +289,9 @@ class BallGen(_Generator):
     center: Vec3 = [0.0, 0.0, 0.0]
     resolution: PosInt = 6
 
+    def cells(self) -> int:
+        return 6 * (2 * self.resolution) ** 3
+
 
 class EllipsoidGen(_Generator):
     """Tetrahedralised ellipsoid (3D volume)."""
@@ -283,6 +303,9 @@ class EllipsoidGen(_Generator):
     center: Vec3 = [0.0, 0.0, 0.0]
     resolution: PosInt = 6
 
+    def cells(self) -> int:
+        return 6 * (2 * self.resolution) ** 3
+
 
 class TetBoxGen(_Generator):
     """Tetrahedralised box (3D volume)."""
@@ -293,6 +316,9 @@ class TetBoxGen(_Generator):
     lo: Vec3 = [-0.5, -0.5, -0.5]
     hi: Vec3 = [0.5, 0.5, 0.5]
     resolution: Res3 = [4, 4, 4]
+
+    def cells(self) -> int:
+        return 6 * math.prod(self.resolution)
 
     @model_validator(mode="after")
     def _box(self) -> TetBoxGen:
@@ -311,6 +337,9 @@ class BoxSurfaceGen(_Generator):
     hi: Vec3 = [1.0, 1.0, 1.0]
     resolution: PosInt = 4
 
+    def cells(self) -> int:
+        return 12 * self.resolution**2
+
     @model_validator(mode="after")
     def _box(self) -> BoxSurfaceGen:
         if p := _check_box(self.lo, self.hi, strict=True):
@@ -327,9 +356,12 @@ class EllipsoidSurfaceGen(_Generator):
     radii: PosVec3 = [0.5, 0.5, 0.5]
     center: Vec3 = [0.0, 0.0, 0.0]
     subdivisions: Annotated[int, Strict(), Field(ge=0, le=7)] = 4
-    noise: Annotated[float, Field(ge=0, lt=0.5, allow_inf_nan=False)] = 0.0
-    smoothing: Annotated[int, Strict(), Field(ge=0)] = 0
+    noise: Annotated[float, Strict(), Field(ge=0, lt=0.5, allow_inf_nan=False)] = 0.0
+    smoothing: Annotated[int, Strict(), Field(ge=0, le=10_000)] = 0  # passes; 10^18 was a hang (40 in Fig. 12c)
     seed: Annotated[int, Strict(), Field(ge=0)] = 0
+
+    def cells(self) -> int:
+        return 20 * 4**self.subdivisions
 
 
 class CylinderSurfaceGen(_Generator):
@@ -344,6 +376,9 @@ class CylinderSurfaceGen(_Generator):
     segments: Annotated[int, Strict(), Field(ge=3)] = 32
     rings: PosInt = 8
     cap_rings: PosInt = 3
+
+    def cells(self) -> int:
+        return 2 * self.segments * (self.rings + 2 * self.cap_rings)
 
     @model_validator(mode="after")
     def _ys(self) -> CylinderSurfaceGen:
@@ -364,6 +399,9 @@ class HourglassSurfaceGen(_Generator):
     upper_center: Float = 1.6
     segments: Annotated[int, Strict(), Field(ge=3)] = 32
     rings: PosInt = 48
+
+    def cells(self) -> int:
+        return 2 * self.segments * self.rings
 
     @model_validator(mode="after")
     def _geom(self) -> HourglassSurfaceGen:
@@ -387,6 +425,9 @@ class DiskGen(_Generator):
     center: Vec2 = [0.0, 0.0]
     resolution: PosInt = 6
 
+    def cells(self) -> int:
+        return 2 * (2 * self.resolution) ** 2
+
 
 class RectangleGen(_Generator):
     """Triangulated rectangle (2D volume)."""
@@ -397,6 +438,9 @@ class RectangleGen(_Generator):
     lo: Vec2 = [0.0, 0.0]
     hi: Vec2 = [1.0, 1.0]
     resolution: Res2 = [4, 4]
+
+    def cells(self) -> int:
+        return 2 * math.prod(self.resolution)
 
     @model_validator(mode="after")
     def _box(self) -> RectangleGen:
@@ -415,6 +459,9 @@ class CirclePolygonGen(_Generator):
     center: Vec2 = [0.0, 0.0]
     segments: Annotated[int, Strict(), Field(ge=3)] = 64
 
+    def cells(self) -> int:
+        return self.segments
+
 
 class BoxPolygonGen(_Generator):
     """Closed rectangular polygon (2D obstacle), ``resolution`` segments per side."""
@@ -425,6 +472,9 @@ class BoxPolygonGen(_Generator):
     lo: Vec2 = [-1.0, -1.0]
     hi: Vec2 = [1.0, 1.0]
     resolution: PosInt = 4
+
+    def cells(self) -> int:
+        return 4 * self.resolution
 
     @model_validator(mode="after")
     def _box(self) -> BoxPolygonGen:
@@ -546,8 +596,8 @@ class SceneObject(_Model):
         starts = [st.start for st in self.material_stages]
         if any(b <= a for a, b in itertools.pairwise(starts)):
             probs.append(("material_stages", f"start steps must increase strictly (got {starts})"))
-        names = [h.name for h in self.handles]
-        dup = sorted({n for n in names if names.count(n) > 1})
+        counts = collections.Counter(h.name for h in self.handles)  # linear: a file may list 10^5 handles
+        dup = sorted(n for n, c in counts.items() if c > 1)
         if dup:
             probs.append(("handles", f"duplicate handle name {dup[0]!r}"))
         if self.generate is not None:

@@ -13,12 +13,15 @@ from idp.errors import SceneError
 # ---------------------------------------------------------------------------------------------
 # Scalar and vector types (strict: TOML/JSON `true` or "10" is never silently a number)
 
+# Integers are 64-bit, as in the TOML specification (Python's parsers read any size; a vertex index of 10^20
+# reached numpy as an OverflowError).
+I64 = 2**63 - 1
 Float = Annotated[float, Strict()]
-Int = Annotated[int, Strict()]
+Int = Annotated[int, Strict(), Field(ge=-I64 - 1, le=I64)]
 Bool = Annotated[bool, Strict()]
 PosFloat = Annotated[float, Strict(), Field(gt=0)]
-PosInt = Annotated[int, Strict(), Field(ge=1)]
-NonNegInt = Annotated[int, Strict(), Field(ge=0)]
+PosInt = Annotated[int, Strict(), Field(ge=1, le=I64)]
+NonNegInt = Annotated[int, Strict(), Field(ge=0, le=I64)]
 Name = Annotated[str, Field(min_length=1)]
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, Strict, model_validator
 
 from idp.scene.schema_base import Bool, PosFloat, _Model, rule_error
 
-NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)]
 
 
 class ShellMaterial(_Model):
@@ -20,7 +20,7 @@ class ShellMaterial(_Model):
     that: E = 0, bending 0, density 1, thickness 1). Lumped masses are ``density`` · ``thickness`` · (vertex area)."""
 
     youngs_modulus: NonNegFloat = 1e4
-    poisson_ratio: Annotated[float, Field(gt=-1, lt=0.5, allow_inf_nan=False)] = 0.3
+    poisson_ratio: Annotated[float, Strict(), Field(gt=-1, lt=0.5, allow_inf_nan=False)] = 0.3
     thickness: PosFloat = 1e-3
     density: PosFloat = 1000.0
     bending: NonNegFloat = 1.0
@@ -51,7 +51,7 @@ class FlowConfig(_Model):
     step with dt² = s²), with ``time.h`` = 1.  Measured on the cat (s = 0.5, 10 steps): γ = 0.25 grows the
     volume x2.718 against the reference's x2.71; γ = s = 0.5 gives x2.42."""
 
-    beta: Annotated[float, Field(allow_inf_nan=False)]
+    beta: Annotated[float, Strict(), Field(allow_inf_nan=False)]
     gamma: NonNegFloat = 0.25
     laplacian: Literal["area", "cotangent"] = "area"
     normals: Literal["mass", "lumped_unit", "area"] = "mass"

@@ -73,11 +73,36 @@ def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
     tmp.replace(path)
 
 
-def _load_condition_states(ck, system) -> None:
+def _load_condition_states(ck: dict[str, np.ndarray], system) -> None:
     for i, cond in enumerate(system.conditions):
         if hasattr(cond, "load_state"):
             pre = f"cond{i}__"
-            cond.load_state({k[len(pre) :]: ck[k] for k in ck.files if k.startswith(pre)})
+            cond.load_state({k[len(pre) :]: v for k, v in ck.items() if k.startswith(pre)})
+
+
+def _read_checkpoint(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an interrupted run's checkpoint; SolverError naming it when it is unreadable (truncated, not
+    an npz, pickled data) or lacks the state every checkpoint holds."""
+    try:  # the file is opened here: np.load leaves its own handle open when the data is not an npz
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as data:
+            ck = {k: data[k] for k in data.files}
+    except Exception as exc:  # zipfile, npy format and pickle refusals, EOF: numpy raises many types
+        raise SolverError(
+            f"checkpoint {path} is unreadable ({type(exc).__name__}: {exc}); remove it to start the run over"
+        ) from None
+    missing = [k for k in ("x", "step", "kappa", "kappa_max") if k not in ck or not isinstance(ck[k], np.ndarray)]
+    if missing:
+        raise SolverError(f"checkpoint {path} lacks {', '.join(missing)}; remove it to start the run over")
+    real = [k for k in ("x", "kappa", "kappa_max") if ck[k].dtype.kind in "fiu" and np.isfinite(ck[k]).all()]
+    bad = [k for k in ("x", "kappa", "kappa_max") if k not in real]
+    bad += [k for k in ("step", "kappa", "kappa_max") if ck[k].shape != ()]
+    if ck["step"].dtype.kind not in "iu" or ck["x"].ndim != 2:
+        bad.append("step" if ck["x"].ndim == 2 else "x")
+    if bad:
+        raise SolverError(
+            f"checkpoint {path}: {', '.join(sorted(set(bad)))} not as idp writes them; remove it to start the run over"
+        )
+    return ck
 
 
 def _cell_data(system) -> dict | None:
@@ -153,7 +178,7 @@ def run_simulation(
     start_step = 0
     previous: list[dict] = []  # the finished steps of the interrupted run, kept in stats.json and the summary
     if settings.resume and checkpoint.exists():
-        ck = np.load(checkpoint)
+        ck = _read_checkpoint(checkpoint)
         if ck["x"].shape != system.x.shape:
             raise SolverError(
                 f"checkpoint {checkpoint} does not match this scene (shape {ck['x'].shape} vs {system.x.shape})"
