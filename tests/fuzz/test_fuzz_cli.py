@@ -483,3 +483,18 @@ def test_scene_output_dir_only_without_o(tmp_path):
     code, _out, err = call(["run", str(files["run"]), "-q"], tmp_path / "given")  # another working folder
     assert code == 0, err
     assert (elsewhere / "stats.json").is_file()
+
+
+def test_out_of_memory_is_a_message(tmp_path, monkeypatch):
+    """Regression: a UV layout with one vertex at 3.4e11 (a mutated input) made Newton's steps so long that ipctk's
+    CCD raised MemoryError (std::bad_alloc after allocating 13 GB), a traceback from main. Now the solver's exit
+    code and a one-line message; the run itself is slow (minutes), so the regression raises the error directly."""
+    import idp.applications.uv_map as uv_map
+
+    def exhausted(*_args: Any, **_kwargs: Any) -> Any:
+        raise MemoryError("std::bad_alloc")
+
+    monkeypatch.setattr(uv_map, "run_uv", exhausted)
+    files = _inputs(tmp_path)
+    code, _out, err = call(["uv", str(files["uv"]), "-o", str(tmp_path / "o.obj"), "-q"], tmp_path)
+    assert code == 4 and err == "idp: solver error: out of memory (std::bad_alloc)\n", err
