@@ -399,6 +399,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("idp: interrupted; finished steps are on disk (resume with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except MemoryError as exc:
+        # the last resort: e.g. one vertex 10^11 away in a UV layout made Newton's steps so long that ipctk's CCD
+        # asked for 13 GB (std::bad_alloc); a message and the solver's exit code rather than a traceback
+        print(f"idp: solver error: out of memory ({exc or 'MemoryError'})", file=sys.stderr)
+        return EXIT_SOLVER
     except BrokenPipeError:
         # stdout's reader went away ('idp check *.vtk | head'): no traceback, and none at exit either, when Python
         # flushes stdout again, so its descriptor is pointed at /dev/null

@@ -6,7 +6,7 @@ Property: ``main`` returns (or argparse exits with) 2 and prints ``idp: error: .
 bad input, or finishes a clean run (0; 3 or 4 with their one-line ``idp: certificate failure`` / ``idp: solver
 error`` message); ``idp check`` reports an unreadable mesh as a failed check (exit 1, by design). Never an uncaught
 exception, never a traceback. Inputs are tiny (a tetrahedron, a two-frame npz, a 3x1 cut cylinder, a scene of one
-generated ball) and ``--steps`` is at most 1, so a run that starts ends in a second or two.
+6-tet box read from a file) and ``--steps`` is at most 1, so a run that starts ends in a second or two.
 """
 
 from __future__ import annotations
@@ -16,9 +16,11 @@ import contextlib
 import io
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +31,8 @@ from hypothesis import event, given
 from hypothesis import strategies as st
 
 from idp.cli import build_parser, main
+from idp.mesh.generate import tet_box
+from idp.mesh.io import write_mesh
 from idp.mesh.uv_obj import cut_cylinder_obj_text
 
 TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
@@ -36,7 +40,8 @@ SCENE = {
     "time": {"steps": 1},
     "solver": {"newton_tol": 0.5},
     "output": {"png": False, "vtu": False},
-    "objects": [{"name": "ball", "generate": {"shape": "ball", "radius": 0.3, "resolution": 1}}],
+    # a mesh file, not a generator: no mutated number can turn the scene into a long run of a huge mesh
+    "objects": [{"name": "box", "mesh": "box.vtk"}],
 }
 VERBS = ("run", "flow", "font", "repair", "uv", "check")
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
@@ -50,6 +55,7 @@ def _inputs(d: Path) -> dict[str, Path]:
     np.savez(
         d / "seq.npz", vertices=np.stack([x, 1.01 * x]), faces=np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     )
+    write_mesh(d / "box.vtk", tet_box((0, 0, 0), (1, 1, 1), 1))
     (d / "scene.json").write_text(json.dumps(SCENE))
     (d / "indices.txt").write_text("0 1\n")
     (d / "binary.bin").write_bytes(bytes(range(256)))
@@ -180,6 +186,24 @@ def argv_for(draw: st.DrawFn, verb: str, files: dict[str, Path], out: Path) -> l
     return argv
 
 
+CALL_BUDGET = 2 * 2**30  # address space one in-process call may add (runs here are tiny: ~300 MB at most)
+
+
+@contextlib.contextmanager
+def _memory_cap() -> Iterator[None]:
+    """Cap this process's address space at its size now + CALL_BUDGET while ``main`` runs, so an input that makes
+    a run grow without bound fails fast with a MemoryError (which the CLI reports) instead of taking the machine."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    with open("/proc/self/status") as fh:
+        vm = int(fh.read().split("VmSize:")[1].split()[0]) * 1024
+    cap = vm + CALL_BUDGET if hard == resource.RLIM_INFINITY else min(vm + CALL_BUDGET, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
 def call(argv: list[str], workdir: Path | None = None) -> tuple[int, str, str]:
     """``main(argv)`` with stdout/stderr captured and the thread settings it may change restored; SystemExit
     (argparse) is turned into its code. Any other exception propagates and fails the test."""
@@ -189,7 +213,7 @@ def call(argv: list[str], workdir: Path | None = None) -> tuple[int, str, str]:
     try:
         if workdir is not None:
             os.chdir(workdir)  # relative paths (an output named "nan" or "-") land in the test's folder
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), _memory_cap():
             try:
                 code: Any = main(argv)
             except SystemExit as exc:
@@ -459,3 +483,18 @@ def test_scene_output_dir_only_without_o(tmp_path):
     code, _out, err = call(["run", str(files["run"]), "-q"], tmp_path / "given")  # another working folder
     assert code == 0, err
     assert (elsewhere / "stats.json").is_file()
+
+
+def test_out_of_memory_is_a_message(tmp_path, monkeypatch):
+    """Regression: a UV layout with one vertex at 3.4e11 (a mutated input) made Newton's steps so long that ipctk's
+    CCD raised MemoryError (std::bad_alloc after allocating 13 GB), a traceback from main. Now the solver's exit
+    code and a one-line message; the run itself is slow (minutes), so the regression raises the error directly."""
+    import idp.applications.uv_map as uv_map
+
+    def exhausted(*_args: Any, **_kwargs: Any) -> Any:
+        raise MemoryError("std::bad_alloc")
+
+    monkeypatch.setattr(uv_map, "run_uv", exhausted)
+    files = _inputs(tmp_path)
+    code, _out, err = call(["uv", str(files["uv"]), "-o", str(tmp_path / "o.obj"), "-q"], tmp_path)
+    assert code == 4 and err == "idp: solver error: out of memory (std::bad_alloc)\n", err

@@ -393,7 +393,7 @@ def _minimal(model: type[BaseModel]) -> dict[str, Any]:
 
 
 @pytest.mark.parametrize("mname,fname,kind,depth", _scalar_fields(), ids=lambda v: str(v))
-def test_scalars_are_strict(mname, fname, kind, depth):
+def test_scalars_are_strict(mname: str, fname: str, kind: str, depth: int) -> None:
     """A number or a boolean written as a string (alone or in a list) is an error naming the key, never silently
     converted: the README's promise that TOML/JSON ``true`` or ``"10"`` is never a number."""
     model = MODELS[mname]
