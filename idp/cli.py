@@ -130,13 +130,8 @@ def _cmd_repair(args) -> int:
 def _cmd_uv(args) -> int:
     _set_threads(args.threads)
     from idp.applications.uv_map import default_report_dir, run_uv, uv_scene
-    from idp.errors import SceneError
 
-    if args.p < 1:
-        raise SceneError(f"--p must be >= 1 (got {args.p:g}): the p-norm of eq. 9 needs p >= 1")
-    if args.steps < 1:
-        raise SceneError(f"--steps must be >= 1 (got {args.steps})")
-    scene = uv_scene(
+    scene = uv_scene(  # the scene schema checks --p (power >= 1), --steps, --dhat, ... and names the key
         args.input,
         p=args.p,
         steps=args.steps,
