@@ -51,6 +51,12 @@ def simulate(
         if targets is not None or check_every_iterate:
             raise SceneError("simulate: `targets` and `check_every_iterate` are not available for a repair scene")
         return run_repair(scene, out, progress=progress, resume=resume, steps=steps)
+    if scene.stages:  # a multi-stage modeling scene: one run per stage (idp.applications.modeling)
+        from idp.applications.modeling import run_stages
+
+        if targets is not None or check_every_iterate or steps is not None:
+            raise SceneError("simulate: `targets`, `check_every_iterate` and `steps` are per stage in a staged scene")
+        return run_stages(scene, out, progress=progress, resume=resume)  # type: ignore[return-value]
     # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
     built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
     if targets is not None:

@@ -181,6 +181,11 @@ def _print_summary(result, out: Path) -> None:
             f"fill fraction:      {100 * fill:.2f} % of the cage volume"
             f" (start {100 * s['initial_fill_fraction']:.2f} %)",
         )
+    for st in s.get("per_stage", []):  # a staged modeling scene: one line per stage
+        lines.append(
+            f"stage {st['index']} {st['stage']}: {st['steps']} step(s), {st['wall_time']:.1f} s, "
+            f"{st['newton_iterations']} Newton iterations, {st['num_elements']} elements"
+        )
     rep = s.get("repair")
     if rep:
         lines.insert(

@@ -12,6 +12,7 @@ import numpy as np
 from idp.contact.certificate import Certifier
 from idp.contact.model import ContactModel
 from idp.energies.elastic import ElasticEnergy, lame_parameters
+from idp.energies.gravity import GravityPotential
 from idp.energies.inertia import lumped_masses
 from idp.energies.pnorm import PNormEnergy
 from idp.errors import IntersectingInputError, MeshError, SceneError
@@ -135,6 +136,20 @@ def _load_uv_object(obj, i: int) -> tuple[Any, UVObject]:
         log.warning("%s: every UV triangle is clockwise; simulating the mirrored layout", uvm.source)
     mesh = VolumeMesh(np.ascontiguousarray(uvm.uv), np.ascontiguousarray(uvm.faces_uv), source=uvm.source)
     return mesh, UVObject(uvm, Dm, areas, mirrored, scale)
+
+
+def _apply_rest_state(obj, elastic) -> dict[str, np.ndarray]:
+    """Set a body's rest frames from ``obj.rest_state`` (an .npz an earlier stage wrote: ``rest_frames``
+    (m,d,d), ``volumes`` (m,), optionally ``plastic_strain`` (m,)); MeshError naming the file when it does not
+    fit the mesh."""
+    from idp.stepper.stage_state import read_rest_state
+
+    st = read_rest_state(obj.rest_state, elastic.elements.shape[0], elastic.dim)
+    try:
+        elastic.set_base_rest_frames(st["rest_frames"], st["volumes"])
+    except ValueError as exc:
+        raise MeshError(f"objects {obj.name!r}: rest_state {obj.rest_state}: {exc}") from None
+    return st
 
 
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
@@ -274,6 +289,7 @@ def build_scene(
 
     masses = np.zeros(N)
     energies = []
+    rest_states: dict[str, dict[str, np.ndarray]] = {}
     for obj, ids, elements, sched in bodies:
         mat = obj.material
         args = (mat.model, x, elements, mat.youngs_modulus, mat.poisson_ratio)
@@ -282,10 +298,12 @@ def build_scene(
         if obj.name in uv_objects:  # rest metric of the 3D triangles, not of the UV layout
             uvo = uv_objects[obj.name]
             el.set_base_rest_frames(uvo.rest_frames, uvo.areas)
+        if obj.rest_state is not None:  # rest frames (and plastic state) an earlier stage ended with
+            rest_states[obj.name] = _apply_rest_state(obj, el)
         masses += lumped_masses(N, elements, el.volumes, mat.density)
         energies.append(Body(obj.name, ids, el, sched))
     shell_terms = _shell_terms(shells, x, masses)
-    material_conditions = _material_conditions(scene, energies, parts, x)
+    material_conditions = _material_conditions(scene, energies, parts, x, rest_states)
     pinned = np.concatenate(fixed)
     free_mask = np.repeat(~pinned, dim)
     if not free_mask.any():
@@ -352,6 +370,9 @@ def build_scene(
         meta["repair_frames"] = [repair.frames[0], repair.frames[-1]]
         meta["prescribed_vertices"] = int(repair.prescribed.size)
     linear_terms: list = []
+    if scene.gravity is not None and any(scene.gravity):
+        linear_terms.append(GravityPotential(masses, np.asarray(scene.gravity, dtype=float)))
+        meta["gravity"] = [float(v) for v in scene.gravity]
     flow = _normal_flow(scene, shells, x, shell_terms, linear_terms)
     system = System(
         dim,
@@ -543,7 +564,9 @@ def _normal_flow(scene, shells, x: np.ndarray, terms: list, linear_terms: list):
     return flow
 
 
-def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.ndarray) -> list:
+def _material_conditions(
+    scene, bodies: list[Body], parts: list[Part], x: np.ndarray, rest_states: dict[str, dict[str, np.ndarray]]
+) -> list:
     """Rest-shape scale scripts (into each body's schedule), bakes, material stages and plasticity (§4.5)."""
     from idp.energies.plasticity import VonMisesPlasticity
     from idp.stepper.conditions import Bake, MaterialStages, Plasticity
@@ -579,6 +602,9 @@ def _material_conditions(scene, bodies: list[Body], parts: list[Part], x: np.nda
         if ob.plasticity is not None:
             # classical (uniaxial) von Mises σ_Y → radius of the Frobenius-norm yield surface: √(2/3) σ_Y
             model = VonMisesPlasticity(np.sqrt(2.0 / 3.0) * ob.plasticity.yield_stress, ob.plasticity.hardening)
+            alpha = rest_states.get(ob.name, {}).get("plastic_strain")
+            if alpha is not None:  # the accumulated plastic strain an earlier stage ended with (hardening)
+                model.plastic_strain = np.array(alpha, dtype=float)
             out.append(Plasticity(body, model, part_index[ob.name]))
     return out
 

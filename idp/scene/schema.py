@@ -58,6 +58,7 @@ from idp.scene.schema_base import (
     rule_error,
 )
 from idp.scene.shell_schema import FLOW_TOL_FRACTION, FlowConfig, ShellMaterial
+from idp.scene.stages_schema import AnchorSpec, RemeshSpec, StageObjectSettings, StageSpec, check_stages
 
 # ---------------------------------------------------------------------------------------------
 # Global sections
@@ -550,6 +551,8 @@ class SceneObject(_Model):
     plasticity: PlasticitySpec | None = None
     material_stages: list[MaterialStageSpec] = Field(default_factory=list)
     rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
+    # deformables: rest frames (and plastic state) saved by an earlier stage (.npz), in place of `mesh`'s shape
+    rest_state: Path | None = None
 
     @field_validator("scale", mode="before")
     @classmethod
@@ -575,6 +578,8 @@ class SceneObject(_Model):
             for key in ("material_stages", "rest_scripts"):
                 if getattr(self, key):
                     probs.append((key, "not supported on shells"))
+        if self.rest_state is not None and (self.kind != "deformable" or self.uv):
+            probs.append(("rest_state", "only for deformable (volume) objects"))
         if self.uv and (self.kind != "deformable" or self.mesh is None or self.frame is not None):
             probs.append(("uv", "only for a deformable object whose `mesh` is an OBJ file with texture coordinates"))
         if self.kind == "obstacle":
@@ -672,7 +677,9 @@ class Scene(_Model):
     dirichlet: DirichletConfig = Field(default_factory=DirichletConfig)
     flow: FlowConfig | None = None
     repair: RepairConfig | None = None
+    gravity: list[Float] | None = None  # body force per unit mass (e.g. [0, -9.8, 0]); none = no gravity
     objects: list[SceneObject] = Field(default_factory=list)
+    stages: list[StageSpec] = Field(default_factory=list)  # a multi-stage modeling scene (§7.5)
 
     @model_validator(mode="after")
     def _rules(self) -> Scene:
@@ -735,7 +742,9 @@ class Scene(_Model):
                 probs.append((f"{p}.kind", "shells are triangle surfaces in 3D (dim = 3)"))
             if ob.uv and d != 2:
                 probs.append((f"{p}.uv", "a UV map is simulated in its 2D texture plane (dim = 2)"))
-        if not any(ob.kind in ("deformable", "shell") for ob in self.objects):
+        vec("gravity", self.gravity)
+        check_stages(self, probs)
+        if not any(ob.kind in ("deformable", "shell") for ob in self.objects) and not self.stages:
             probs.append(("objects", "at least one deformable or shell object is required"))
         if self.flow is not None and not any(ob.kind == "shell" for ob in self.objects):
             probs.append(("flow", 'a normal flow moves shell objects (kind = "shell"); the scene has none'))
@@ -837,7 +846,22 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     PlasticitySpec,
     MaterialStageSpec,
     RestScriptSpec,
+    StageSpec,
+    StageObjectSettings,
+    AnchorSpec,
+    RemeshSpec,
     *GENERATORS.values(),
 )
+# the stage models name these classes; complete them now that they exist
+_STAGE_NAMES = {
+    "Material": Material,
+    "SceneObject": SceneObject,
+    "FixedSelector": FixedSelector,
+    "ShellMaterial": ShellMaterial,
+}
+StageObjectSettings.model_rebuild(_types_namespace=_STAGE_NAMES)
+StageSpec.model_rebuild(_types_namespace=_STAGE_NAMES)
+Scene.model_rebuild()
+
 MODELS: dict[str, type[BaseModel]] = {c.__name__: c for c in _MODEL_CLASSES}
 """Every scene model by class name (used to interpret error locations)."""

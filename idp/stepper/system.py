@@ -90,6 +90,9 @@ class System:
         self.inertia = Inertia(self.masses, self.dim)
         if self.step_constraint is not None and hasattr(self.step_constraint, "masses"):
             self.step_constraint.masses = self.masses
+        for t in self.linear_terms:  # terms whose force scales with the masses (gravity)
+            if hasattr(t, "set_masses"):
+                t.set_masses(self.masses)
 
     @property
     def elements(self) -> list[np.ndarray]:

@@ -1,0 +1,185 @@
+"""Multi-stage modeling scenes (paper §4.5 bake, §7.5): stage hand-over, bake, carry, resume, gravity, errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from idp.applications.modeling import run_stages
+from idp.errors import IntersectingInputError, SceneError
+from idp.mesh.io import read_mesh
+from idp.scene.build import build_scene
+from idp.scene.load import load_scene
+from idp.scene.schema import Scene
+
+
+def _scene(**over) -> Scene:
+    """A small plastic ball squeezed by a hanging weight of gravity onto a floor, then relaxed (two stages)."""
+    d = {
+        "name": "two",
+        "dim": 3,
+        "gravity": [0.0, -9.8, 0.0],
+        "contact": {"dhat": 1e-3},
+        "output": {"png": False, "obj": False},
+        "objects": [
+            {
+                "name": "dough",
+                "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+                "translate": [0.0, 0.32, 0.0],
+                "material": {"youngs_modulus": 2e3},
+                "plasticity": {"yield_stress": 50.0},
+            },
+            {
+                "name": "floor",
+                "kind": "obstacle",
+                "generate": {"shape": "box_surface", "lo": [-1, -0.1, -1], "hi": [1, 0.0, 1], "resolution": 2},
+            },
+        ],
+        "stages": [
+            {"name": "drop", "steps": 3, "after": {"dough": "carry"}},
+            {"name": "settle", "steps": 2, "set": {"dough": {"material": {"youngs_modulus": 3e3}}}},
+        ],
+    }
+    d.update(over)
+    return Scene(**d)
+
+
+def _final(out: Path, name: str = "dough") -> np.ndarray:
+    return read_mesh(out / "final" / f"{name}.vtu", kind="volume").vertices
+
+
+def test_two_stages_equal_two_runs_with_a_resume_between(tmp_path):
+    whole = run_stages(_scene(), tmp_path / "whole", progress=False)
+    assert whole.summary["stages_run"] == 2 and whole.all_certified
+    part = run_stages(_scene(), tmp_path / "split", progress=False, stop_after=0)
+    assert part.summary["stages_run"] == 1 and not (tmp_path / "split" / "final").exists()
+    rest = run_stages(_scene(), tmp_path / "split", progress=False, resume=True)
+    assert rest.summary["stages_run"] == 2
+    # the resumed run took stage 0 from disk; the same arithmetic then follows, up to round-off of the
+    # linear solver's thread scheduling (positions ~0.3, d̂ = 1e-3)
+    np.testing.assert_allclose(_final(tmp_path / "split"), _final(tmp_path / "whole"), rtol=0, atol=1e-9)
+    # the material set by stage 1 is in its resolved scene; stage 0 kept the top-level one
+    s0 = load_scene(tmp_path / "whole" / "stages" / "00_drop" / "scene.resolved.toml")
+    s1 = load_scene(tmp_path / "whole" / "stages" / "01_settle" / "scene.resolved.toml")
+    assert s0.objects[0].material.youngs_modulus == 2e3 and s1.objects[0].material.youngs_modulus == 3e3
+    per = json.loads((tmp_path / "whole" / "stages.json").read_text())["per_stage"]
+    assert [p["steps"] for p in per] == [3, 2]
+
+
+def _end_gradient(stage_dir: Path, scene: Scene) -> np.ndarray:
+    """The elastic gradient of stage 0's last state with stage 0's own rest frames (rebuilt and resumed)."""
+    s = load_scene(stage_dir / "scene.resolved.toml")
+    built = build_scene(s)
+    from idp.stepper.run import _load_condition_states, _read_checkpoint
+
+    ck = _read_checkpoint(stage_dir / "checkpoint.npz")
+    _load_condition_states(ck, built.system)
+    body = built.system.bodies[0]
+    return body.elastic.gradient(ck["x"])[: 3 * body.vertex_ids.size]
+
+
+@pytest.mark.parametrize("after", ["bake", "carry"])
+def test_bake_makes_the_shape_stress_free_and_carry_keeps_the_stress(tmp_path, after):
+    sc = _scene(stages=[{"name": "drop", "steps": 3, "after": {"dough": after}}, {"name": "next", "steps": 1}])
+    run_stages(sc, tmp_path, progress=False, stop_after=0)
+    start = run_stages(sc, tmp_path, progress=False, resume=True, stop_after=0)  # done stage: nothing re-run
+    assert start.summary["stages_run"] == 1
+    g_end = _end_gradient(tmp_path / "stages" / "00_drop", sc)
+    # stage 1 as a scene of its own starts from the files stage 0 wrote
+    stage1 = Scene.model_validate(
+        {
+            **sc.model_dump(exclude_none=True, exclude={"stages", "objects"}),
+            "objects": [
+                {
+                    "name": "dough",
+                    "mesh": tmp_path / "stages" / "00_drop" / "state" / "dough.vtu",
+                    "rest_state": tmp_path / "stages" / "00_drop" / "state" / "dough.rest.npz",
+                    "material": {"youngs_modulus": 2e3},
+                },
+                sc.objects[1].model_dump(exclude_none=True),
+            ],
+        }
+    )
+    built = build_scene(stage1)
+    body = built.system.bodies[0]
+    g = body.elastic.gradient(built.system.x)[: 3 * body.vertex_ids.size]
+    scale = np.abs(g_end).max()
+    assert scale > 1e-6  # the drop deformed the dough: there is stress to bake away
+    if after == "bake":
+        assert np.abs(g).max() <= 1e-9 * scale + 1e-12
+    else:
+        np.testing.assert_allclose(g, g_end, rtol=0, atol=1e-8 * scale)
+
+
+def test_gravity_moves_a_free_body_by_h_g_per_step(tmp_path):
+    sc = Scene.model_validate(
+        {
+            "dim": 3,
+            "gravity": [0.0, -2.0, 0.0],
+            "time": {"h": 1e-3, "steps": 3},
+            "output": {"png": False, "obj": False, "vtu": False},
+            "objects": [{"name": "b", "generate": {"shape": "ball", "radius": 0.2, "resolution": 2}}],
+            "solver": {"newton_tol": 1e-9},
+        }
+    )
+    built = build_scene(sc)
+    x0 = built.system.x.copy()
+    from idp.api import run_built
+
+    res = run_built(sc, built, tmp_path, progress=False)
+    np.testing.assert_allclose(res.x - x0, np.tile([0.0, -2.0 * 1e-3 * 3, 0.0], (x0.shape[0], 1)), atol=1e-9)
+
+
+def test_stage_errors_name_the_stage_and_key():
+    with pytest.raises(SceneError, match=r"stages\[1\]\.set\.ghost"):
+        _scene(stages=[{"name": "a", "steps": 1}, {"name": "b", "steps": 1, "set": {"ghost": {}}}])
+    with pytest.raises(SceneError, match=r"stages\[0\]\.after\.floor"):
+        _scene(stages=[{"name": "a", "steps": 1, "after": {"floor": "bake"}}])
+    with pytest.raises(SceneError, match=r"stages\[1\]\.name"):
+        _scene(stages=[{"name": "a", "steps": 1}, {"name": "a", "steps": 1}])
+    with pytest.raises(SceneError, match=r"stages\[1\]\.set\.dough"):  # removed before stage 1
+        _scene(stages=[{"name": "a", "steps": 1}, {"name": "b", "steps": 1, "remove": ["dough"], "set": {"dough": {}}}])
+    with pytest.raises(SceneError, match=r"stages\[0\]\.set\.floor\.material"):
+        _scene(stages=[{"name": "a", "steps": 1, "set": {"floor": {"material": {"youngs_modulus": 1.0}}}}])
+
+
+def test_a_failing_stage_leaves_the_earlier_ones_intact_and_names_itself(tmp_path):
+    bad = {  # added across the dough's top: the stage's input intersects
+        "name": "intruder",
+        "generate": {"shape": "ball", "radius": 0.05, "resolution": 1},
+    }
+    sc = _scene(
+        stages=[
+            {"name": "drop", "steps": 2},
+            {
+                "name": "add",
+                "steps": 1,
+                "add": [bad],
+                "anchor": {"intruder": {"object": "dough", "at": [0.5, 1.0, 0.5]}},
+            },
+        ]
+    )
+    with pytest.raises(IntersectingInputError, match=r"stages\[1\] \(add\)"):
+        run_stages(sc, tmp_path, progress=False)
+    done = json.loads((tmp_path / "stages" / "00_drop" / "stage.json").read_text())
+    assert done["status"] == "done" and Path(done["objects"]["dough"]["mesh"]).is_file()
+
+
+def test_an_added_object_is_placed_relative_to_a_current_shape(tmp_path):
+    top = {"name": "cap", "generate": {"shape": "ball", "radius": 0.05, "resolution": 1}, "translate": [0, 0.06, 0]}
+    sc = _scene(
+        stages=[
+            {"name": "drop", "steps": 2},
+            {"name": "cap", "steps": 1, "add": [top], "anchor": {"cap": {"object": "dough", "at": [0.5, 1.0, 0.5]}}},
+        ]
+    )
+    res = run_stages(sc, tmp_path, progress=False)
+    dough = read_mesh(tmp_path / "stages" / "00_drop" / "state" / "dough.vtu", kind="volume").vertices
+    cap_in = load_scene(tmp_path / "stages" / "01_cap" / "scene.resolved.toml").object("cap")
+    lo, hi = dough.min(axis=0), dough.max(axis=0)
+    want = lo + np.array([0.5, 1.0, 0.5]) * (hi - lo) + np.array([0, 0.06, 0])
+    np.testing.assert_allclose(cap_in.translate, want, atol=1e-12)
+    assert res.all_certified and "cap" in res.final_shapes
