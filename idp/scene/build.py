@@ -318,6 +318,7 @@ def build_scene(
     n_pairs = n_touching = 0
     if c.enabled:
         preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
+        _refuse_nested(x, parts)
         contact = ContactModel(
             x,
             all_surface,
@@ -693,6 +694,29 @@ def _touching_crossings(touching: list[tuple[list[int], list[int]]], faces: np.n
             edges = {tuple(sorted((v, w))) for t in by_vertex[v] for w in faces[t].tolist() if w != v}
             keys |= {(e, t) for e in edges for t in near}
     return keys
+
+
+def _refuse_nested(x: np.ndarray, parts: list[Part]) -> None:
+    """IntersectingInputError when an object starts inside a deformable body's material (e.g. an instance or
+    an added object placed into another body): surfaces that do not cross cannot show it, the winding number
+    of one of its vertices can (a body held in a cavity, such as a dumpling filling, is outside the material)."""
+    from idp.mesh.containment import winding_numbers
+
+    if len(parts) < 2:
+        return
+    probes = np.array([int(p.vertex_ids[0]) for p in parts])
+    for a in parts:
+        if a.kind != "deformable":
+            continue
+        others = [k for k, b in enumerate(parts) if b is not a]
+        w = winding_numbers(x[probes[others]], x, a.surface)
+        inside = [others[j] for j in np.flatnonzero(w > 0.5)]
+        if inside:
+            b = parts[inside[0]]
+            raise IntersectingInputError(
+                f"object {b.name!r} starts inside the material of {a.name!r} (its vertex {int(probes[inside[0]])} "
+                f"at {np.round(x[probes[inside[0]]], 6).tolist()}); place it outside"
+            )
 
 
 def _describe_vertex(v: int, parts: list[Part]) -> str:

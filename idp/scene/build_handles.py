@@ -68,7 +68,7 @@ def motion_from_spec(spec, key: str, dt: float) -> mo.Motion:
     if t == "rotate":
         return mo.Rotate(float(spec.degrees_per_second), center if center is not None else 0.0, _vec(spec.axis))
     if t == "scale":
-        return mo.Scale(_required_vec(spec.rate), center if center is not None else 0.0)
+        return mo.Scale(_required_vec(spec.rate), center if center is not None else 0.0, spec.law)
     if t == "keyframes":
         keys = []
         for k in spec.keyframes:

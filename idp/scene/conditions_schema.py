@@ -94,7 +94,8 @@ class MotionSpec(_Model):
     - ``fixed``: stays where it was when the handle started;
     - ``translate``: ``velocity``;
     - ``rotate``: ``degrees_per_second`` about ``axis`` (3D) through ``center``;
-    - ``scale``: factor 1 + ``rate``·t (scalar or per axis) about ``center``;
+    - ``scale``: factor 1 + ``rate``·t (scalar or per axis) about ``center``; ``law = "exponential"``: e^{rate·t},
+      the same fraction per unit time (the authors' ``scaleVel = −0.1`` per step is rate = ln(0.9)/√h);
     - ``keyframes``: ``keyframes`` (at least two, increasing ``step``), ``interpolation`` linear or smooth,
       about ``center``;
     - ``targets``: final positions reached in ``quota`` steps (§4.3), either ``offset`` (added to the
@@ -107,6 +108,7 @@ class MotionSpec(_Model):
     axis: list[Float] | None = None
     center: list[Float] | None = None
     rate: Scale | None = None
+    law: Literal["linear", "exponential"] = "linear"
     keyframes: list[KeyframeSpec] | None = None
     interpolation: Literal["linear", "smooth"] = "linear"
     offset: list[Float] | None = None
@@ -136,6 +138,8 @@ class MotionSpec(_Model):
                 probs.append((k, f"not used by type = {self.type!r}"))
         if self.type == "targets" and (self.offset is None) == (self.file is None):
             probs.append(("", "type = 'targets' needs exactly one of `offset` or `file`"))
+        if self.type != "scale" and self.law != "linear":
+            probs.append(("law", "only used by type = 'scale'"))
         if self.type != "targets" and self.quota != 1:
             probs.append(("quota", "only used by type = 'targets'"))
         if self.keyframes is not None:

@@ -69,14 +69,17 @@ class Rotate(Motion):
 
 @dataclass
 class Scale(Motion):
-    """Scaling about ``center`` by 1 + rate·t per axis (rate a scalar or per axis; factor kept > 0)."""
+    """Scaling about ``center`` per axis by 1 + rate·t (``law = "linear"``) or e^{rate·t} (``"exponential"``: a
+    fixed fraction per unit time, the reference code's per-step ``scaleVel``); rate a scalar or per axis."""
 
     rate: np.ndarray
     center: np.ndarray | float  # 0.0: the origin
+    law: str = "linear"
 
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
         c = np.asarray(self.center, dtype=float)
-        f = 1.0 + np.asarray(self.rate, dtype=float) * t
+        r = np.asarray(self.rate, dtype=float)
+        f = np.exp(r * t) if self.law == "exponential" else 1.0 + r * t
         if np.any(f <= 0):
             raise ValueError(f"scale motion reached a non-positive factor {f} at t = {t:g}")
         return (X - c) * f + c

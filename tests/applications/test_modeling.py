@@ -164,6 +164,11 @@ def test_a_failing_stage_leaves_the_earlier_ones_intact_and_names_itself(tmp_pat
     )
     with pytest.raises(IntersectingInputError, match=r"stages\[1\] \(add\)"):
         run_stages(sc, tmp_path, progress=False)
+    # wholly inside the dough: no surface crosses, the winding number of its vertex tells
+    sc = sc.model_copy(deep=True)
+    sc.stages[1].anchor["intruder"].at = [0.5, 0.5, 0.5]
+    with pytest.raises(IntersectingInputError, match=r"stages\[1\] \(add\).*'intruder' starts inside .*'dough'"):
+        run_stages(sc, tmp_path / "nested", progress=False)
     done = json.loads((tmp_path / "stages" / "00_drop" / "stage.json").read_text())
     assert done["status"] == "done" and Path(done["objects"]["dough"]["mesh"]).is_file()
 

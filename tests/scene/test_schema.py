@@ -103,7 +103,7 @@ def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
 
 
 BAD_CASES = {
-    "unknown top-level key": (_set("gravity", 9.8), r"scene\.toml: gravity: unknown key"),
+    "unknown top-level key": (_set("wind", 9.8), r"scene\.toml: wind: unknown key"),
     "unknown nested key": (
         _set("objects.0.materiall", {"youngs_modulus": 1.0}),
         r"objects\[0\]\.materiall: unknown key \(did you mean 'material'\?\)",
