@@ -43,10 +43,8 @@ def _edge_matrices(v: np.ndarray, e: np.ndarray) -> np.ndarray:
     return np.transpose(xe[:, 1:, :] - xe[:, :1, :], (0, 2, 1))
 
 
-def _locate(
-    old_x: np.ndarray, old_elements: np.ndarray, points: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(element per point, inside flag per point) — see :func:`locate_points`."""
+def _locate(old_x: np.ndarray, old_elements: np.ndarray, points: np.ndarray, k: int) -> np.ndarray:
+    """Element per point — see :func:`locate_points`."""
     m = old_elements.shape[0]
     q = points.shape[0]
     if m == 0:
@@ -79,7 +77,7 @@ def _locate(
         kk = min(4 * kk, m, max(64, k))
         if kk == tried:
             break
-    return best, score >= -INSIDE_TOL
+    return best
 
 
 def locate_points(old_x: np.ndarray, old_elements: np.ndarray, points: np.ndarray, *, k: int = 8) -> np.ndarray:
@@ -99,7 +97,7 @@ def locate_points(old_x: np.ndarray, old_elements: np.ndarray, points: np.ndarra
         raise ValueError(f"k must be >= 1, got {k}")
     if p.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
-    return _locate(v, e, p, k)[0]
+    return _locate(v, e, p, k)
 
 
 def _locate_new_centroids(
