@@ -33,3 +33,7 @@ class FontError(IdpError):
 
 class OutputError(IdpError):
     """An output path is unusable: a file where a folder is needed, a folder where a file is, no permission."""
+
+
+class MesherUnavailableError(IdpError):
+    """An optional mesher (TetGen, through the ``idp[remesh]`` extra) is needed but not installed."""
