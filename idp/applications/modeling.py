@@ -179,7 +179,8 @@ def _deformable_end_state(
         Dm = _rest_matrices(x_body, elements)
         vol = np.abs(np.linalg.det(Dm)) / math.factorial(x_body.shape[1])
     if what in ("remesh", "bake_remesh"):
-        from idp.mesh.remesh import mesher_available, remesh_volume, transfer_cell_data, transfer_rest_frames
+        from idp.mesh.remesh import mesher_available, remesh_volume
+        from idp.mesh.transfer import transfer_cell_data, transfer_rest_frames
 
         if not mesher_available():  # if_unavailable = "skip" (an "error" stage was refused before running)
             log.warning("stage %s: the mesher is not installed; %s carries its mesh on", stage.name, body.name)

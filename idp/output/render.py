@@ -31,6 +31,14 @@ _CAGE_EDGE = (0.25, 0.25, 0.28, 0.9)
 _DENSE = 4000  # above this many faces per panel, no mesh edges are drawn
 
 
+#: rotations taking a scene's up axis to +z (the camera's up), right-handed
+UP_ROTATIONS = {
+    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+    "z": np.eye(3),
+}
+
+
 def _camera(view: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Right, up, towards-eye unit vectors and the light direction for (elev, azim) in degrees."""
     elev, azim = np.radians(view[0]), np.radians(view[1])
@@ -174,6 +182,7 @@ def render_frames_png(
     dim: int,
     view: tuple[float, float] = (20, -60),
     size: tuple[int, int] = (1200, 600),
+    up: str = "z",
 ) -> None:
     """Render ``frames`` ([(title, x), ...], x (n, dim) global positions) side by side into one PNG.
 
@@ -189,6 +198,10 @@ def render_frames_png(
         if x.ndim != 2 or x.shape[1] < dim or x.shape[0] < need:
             raise ValueError(f"frame {title!r}: x must be (n>={need}, {dim}), got {x.shape}")
         xs.append(x[:, :dim])
+    if dim == 3 and up != "z":  # a rotation that takes the scene's up axis to the camera's z
+        if up not in UP_ROTATIONS:
+            raise ValueError(f"up must be one of x, y, z, got {up!r}")
+        xs = [x @ UP_ROTATIONS[up].T for x in xs]
     dpi = 100
     fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi, facecolor="white")
     FigureCanvasAgg(fig)

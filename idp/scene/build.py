@@ -465,8 +465,20 @@ def build_scene(
         write_png=o.png,
         on_nonconvergence=s.on_nonconvergence,
         on_unmet_targets=scene.dirichlet.on_unmet,
+        render_up=_up_axis(scene),
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
+
+
+def _up_axis(scene) -> str:
+    """The axis drawn upwards in pictures: the scene's ``output.up``, or (auto) the axis most against gravity."""
+    up = scene.output.up
+    if up != "auto":
+        return up
+    g = np.asarray(scene.gravity or [0.0, 0.0, 0.0], dtype=float)
+    if scene.dim != 3 or not np.any(g):
+        return "z"
+    return "xyz"[int(np.argmax(np.abs(g)))]
 
 
 def _repair_frames(scene, shells, terms: list[WeightedTerm], preserved: set):

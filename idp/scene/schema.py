@@ -123,6 +123,8 @@ class OutputConfig(_Model):
     # per-step distortion figures (worst / 99th percentile / mean symmetric Dirichlet) in stats.json and a
     # `distortion` cell field in the VTU frames; default: on when a material has power > 1 or an object is a UV map
     distortion: Bool | None = None
+    # the scene's up axis in pictures (3D): "auto" = against gravity when the scene has gravity, else z
+    up: Literal["auto", "x", "y", "z"] = "auto"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -39,6 +39,7 @@ class RunSettings:
     on_unmet_targets: str = "warn"  # a step ending with Dirichlet targets unmet: "warn" or "error" (stop)
     progress: bool = True
     resume: bool = False
+    render_up: str = "z"  # the scene axis drawn upwards in frames.png (3D)
 
 
 @dataclass
@@ -367,6 +368,7 @@ def run_simulation(
                 system.parts,
                 [(f"step {start_step}", x0), (f"step {summary['last_step']}", x)],
                 dim=system.dim,
+                up=settings.render_up,
             )
         except Exception as exc:  # a picture must never lose a finished run
             log.warning("could not render frames.png: %s", exc)

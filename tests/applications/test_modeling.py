@@ -188,3 +188,53 @@ def test_an_added_object_is_placed_relative_to_a_current_shape(tmp_path):
     want = lo + np.array([0.5, 1.0, 0.5]) * (hi - lo) + np.array([0, 0.06, 0])
     np.testing.assert_allclose(cap_in.translate, want, atol=1e-12)
     assert res.all_certified and "cap" in res.final_shapes
+
+
+@pytest.mark.parametrize("after", ["remesh", "bake_remesh"])
+def test_remesh_between_stages_keeps_the_surface_and_transfers_the_rest_state(tmp_path, after):
+    pytest.importorskip("tetgen", reason="remeshing needs the optional mesher (pip install idp[remesh])")
+    sc = _scene(stages=[{"name": "drop", "steps": 3, "after": {"dough": after}}, {"name": "next", "steps": 1}])
+    res = run_stages(sc, tmp_path, progress=False)
+    assert res.all_certified
+    s0 = tmp_path / "stages" / "00_drop"
+    rec = json.loads((s0 / "stage.json").read_text())["objects"]["dough"]
+    assert rec["remesh"]["elements_after"] == rec["elements"] > 0
+    assert rec["remesh"]["quality_after"]["min_dihedral"] > 0
+    # the boundary surface after the remesh is the one the stage ended with (bitwise: points and triangles)
+    from idp.mesh.surface import boundary_faces
+
+    built = build_scene(load_scene(s0 / "scene.resolved.toml"))
+    from idp.stepper.run import _read_checkpoint
+
+    x_end = _read_checkpoint(s0 / "checkpoint.npz")["x"]
+    part = built.system.parts[0]
+    old_tris = {tuple(sorted(map(tuple, x_end[f]))) for f in part.surface}
+    new = read_mesh(s0 / "state" / "dough.vtu", kind="volume")
+    new_tris = {tuple(sorted(map(tuple, new.vertices[f]))) for f in boundary_faces(new.elements)}
+    assert new_tris == old_tris
+    # the next stage starts with the transferred rest state: stress-free after bake_remesh; with remesh, the
+    # deformation gradients of the new elements are the old ones at their centroids (piecewise constant)
+    nxt = build_scene(load_scene(tmp_path / "stages" / "01_next" / "scene.resolved.toml"))
+    body = nxt.system.bodies[0]
+    g = body.elastic.gradient(nxt.system.x)
+    if after == "bake_remesh":
+        assert np.abs(g).max() < 1e-9
+    else:
+        F_new = body.elastic.deformation_gradients(nxt.system.x)
+        assert np.abs(F_new - np.eye(3)).max() > 1e-3  # the stage's deformation was carried over
+
+
+def test_remesh_without_the_mesher_names_the_extra(tmp_path, monkeypatch):
+    import idp.mesh.remesh as remesh
+
+    monkeypatch.setattr(remesh, "mesher_available", lambda: False)
+    sc = _scene(stages=[{"name": "drop", "steps": 1, "after": {"dough": "remesh"}}])
+    with pytest.raises(SceneError, match=r"stages\[0\] \(drop\)\.after\.dough.*idp\[remesh\]"):
+        run_stages(sc, tmp_path, progress=False)
+    assert not (tmp_path / "stages").exists()  # refused before any stage ran
+    sc = _scene(
+        stages=[{"name": "drop", "steps": 1, "after": {"dough": "remesh"}, "remesh": {"if_unavailable": "skip"}}]
+    )
+    res = run_stages(sc, tmp_path / "skip", progress=False)
+    rec = res.stages[0]["objects"]["dough"]
+    assert "skipped" in rec["remesh"]
