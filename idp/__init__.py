@@ -30,4 +30,12 @@ def __getattr__(name):  # lazy: keep `import idp` cheap
         from idp.scene.schema import Scene
 
         return Scene
+    if name == "Stage":  # one stage of a multi-stage modeling scene (Scene.stages)
+        from idp.scene.stages_schema import StageSpec
+
+        return StageSpec
+    if name == "run_stages":
+        from idp.applications.modeling import run_stages
+
+        return run_stages
     raise AttributeError(name)

@@ -167,8 +167,9 @@ def check_stages(scene, probs: list[tuple[str, str]]) -> None:
         for j, name in enumerate(st.objects or []):
             if name not in alive:
                 probs.append((f"{p}.objects[{j}]", f"no object {name!r} is present at this stage"))
-        if st.objects is not None and not any(kinds.get(n) in ("deformable", "shell") for n in taking):
-            probs.append((f"{p}.objects", "at least one deformable or shell object must take part"))
+        if not any(kinds.get(n) in ("deformable", "shell") for n in taking & alive):
+            key = f"{p}.objects" if st.objects is not None else p
+            probs.append((key, "no deformable or shell object takes part in this stage"))
         for name, s in st.set.items():
             q = f"{p}.set.{name}"
             if name not in alive:
