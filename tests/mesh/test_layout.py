@@ -40,7 +40,7 @@ def test_grid_counts_and_order() -> None:
 
 def test_ring_radii_and_angles_3d() -> None:
     center = np.array([1.0, 2.0, 3.0])
-    lin, t = ring_transforms(8, 2.5, center, axis=[0, 0, 1], start_degrees=10.0)
+    lin, t = ring_transforms(8, 2.5, center.tolist(), axis=[0, 0, 1], start_degrees=10.0)
     assert lin.shape == (8, 3, 3)
     assert_rotations(lin)
     rel = t - center
@@ -95,17 +95,17 @@ def test_ring_2d() -> None:
 
 
 def test_random_is_reproducible_and_seeds_differ() -> None:
-    args = dict(translate_lo=[-1, 0, -1], translate_hi=[1, 2, 1])
-    a = random_transforms(20, 7, **args)
-    b = random_transforms(20, 7, **args)
+    lo, hi = [-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]
+    a = random_transforms(20, 7, lo, hi)
+    b = random_transforms(20, 7, lo, hi)
     np.testing.assert_array_equal(a[0], b[0])  # bit for bit
     np.testing.assert_array_equal(a[1], b[1])
-    c = random_transforms(20, 8, **args)
+    c = random_transforms(20, 8, lo, hi)
     assert not np.allclose(a[1], c[1]) and not np.allclose(a[0], c[0])
     assert_rotations(a[0])
     assert np.all(a[1] >= [-1, 0, -1]) and np.all(a[1] <= [1, 2, 1])
     # copy k does not depend on the count: a longer layout extends a shorter one
-    short = random_transforms(5, 7, **args)
+    short = random_transforms(5, 7, lo, hi)
     np.testing.assert_array_equal(short[0], a[0][:5])
     np.testing.assert_array_equal(short[1], a[1][:5])
 
