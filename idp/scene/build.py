@@ -138,8 +138,13 @@ def _load_uv_object(obj, i: int) -> tuple[Any, UVObject]:
 
 
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
+    """The object's own placement (scale, rotate about the origin, translate), then its instance transform."""
     rots = [r.degrees if dim == 2 else (tuple(r.axis), r.degrees) for r in (obj.rotate or [])]
-    return place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+    placed = place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+    if getattr(obj, "instance_transform", None) is not None:
+        matrix, shift = obj.instance_transform.arrays()
+        placed = placed @ matrix.T + shift
+    return placed
 
 
 def _fixed_vertices(obj, i: int, verts: np.ndarray) -> np.ndarray:
@@ -300,6 +305,8 @@ def build_scene(
     n_pairs = n_touching = 0
     if c.enabled:
         preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
+        if not c.preserve_input_intersections:
+            _refuse_nested(x, parts)
         contact = ContactModel(
             x,
             all_surface,
@@ -676,6 +683,43 @@ def _describe_vertex(v: int, parts: list[Part]) -> str:
     return str(v)
 
 
+def _object_name(v: int, parts: list[Part]) -> str:
+    for p in parts:
+        if p.vertex_ids[0] <= v <= p.vertex_ids[-1]:
+            return p.name
+    return "?"
+
+
+def _object_pairs(keys, parts: list[Part]) -> str:
+    """Which objects intersect: ``ball_0 and ball_1 (56 pairs), ball_1 and ball_2 (56 pairs)`` (first 10)."""
+    from collections import Counter
+
+    counts: Counter = Counter()
+    for a, b in keys:
+        na, nb = _object_name(a[0], parts), _object_name(b[0], parts)
+        counts[(na, nb) if (na, nb) <= (nb, na) else (nb, na)] += 1
+    shown = [
+        (f"{a} with itself" if a == b else f"{a} and {b}") + f" ({n} pair{'s' if n > 1 else ''})"
+        for (a, b), n in sorted(counts.items())[:10]
+    ]
+    more = f" and {len(counts) - 10} more object pairs" if len(counts) > 10 else ""
+    return ", ".join(shown) + more
+
+
+def _refuse_nested(x: np.ndarray, parts: list[Part]) -> None:
+    """A deformable body that starts wholly inside another (no surface crossing) overlaps it: refused."""
+    from idp.scene.build_nesting import nested_bodies
+
+    nested = nested_bodies(x, parts)
+    if nested:
+        shown = ", ".join(f"{a} inside {b}" for a, b in nested[:10])
+        more = f" and {len(nested) - 10} more" if len(nested) > 10 else ""
+        raise IntersectingInputError(
+            f"the start state has {len(nested)} deformable body(ies) wholly inside another: {shown}{more}. "
+            "Move or shrink them apart."
+        )
+
+
 def _input_intersections(x, surface, parts, dim, preserve: bool):
     """Find intersecting surface primitive pairs; refuse them, or return them to be preserved.
 
@@ -700,7 +744,9 @@ def _input_intersections(x, surface, parts, dim, preserve: bool):
                 + ")"
             )
         raise IntersectingInputError(
-            f"the start state has {len(keys)} intersecting surface primitive pair(s) (object:vertex ids), e.g. "
+            f"the start state has {len(keys)} intersecting surface primitive pair(s), between "
+            + _object_pairs(keys, parts)
+            + "; (object:vertex ids) e.g. "
             + "; ".join(shown)
             + ". Fix the input, or set contact.preserve_input_intersections = true to keep them"
             " (IDP then preserves, never removes, them)."

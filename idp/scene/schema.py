@@ -36,6 +36,16 @@ from idp.scene.conditions_schema import (
     SelectionSpec,
     SphereSpec,
 )
+from idp.scene.layout_schema import (
+    GridSpec,
+    InstanceRotation,
+    InstancesSpec,
+    InstanceTransform,
+    RandomSpec,
+    RingSpec,
+    TransformSpec,
+    expand_instances,
+)
 from idp.scene.repair_schema import REPAIR_DHAT, REPAIR_NEWTON_TOL, RepairConfig, RepairSelector
 from idp.scene.schema_base import (
     Bool,
@@ -550,6 +560,9 @@ class SceneObject(_Model):
     plasticity: PlasticitySpec | None = None
     material_stages: list[MaterialStageSpec] = Field(default_factory=list)
     rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
+    # copies of this object, each its own body `{name}_{k}` (expanded by Scene; idp/scene/layout_schema.py)
+    instances: InstancesSpec | None = None
+    instance_transform: InstanceTransform | None = None  # one copy's map, after scale/rotate/translate
 
     @field_validator("scale", mode="before")
     @classmethod
@@ -735,6 +748,8 @@ class Scene(_Model):
                 probs.append((f"{p}.kind", "shells are triangle surfaces in 3D (dim = 3)"))
             if ob.uv and d != 2:
                 probs.append((f"{p}.uv", "a UV map is simulated in its 2D texture plane (dim = 2)"))
+        self.objects, layout_probs = expand_instances(self.objects, d)  # checked above in the file's numbering
+        probs.extend(layout_probs)
         if not any(ob.kind in ("deformable", "shell") for ob in self.objects):
             probs.append(("objects", "at least one deformable or shell object is required"))
         if self.flow is not None and not any(ob.kind == "shell" for ob in self.objects):
@@ -837,6 +852,13 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     PlasticitySpec,
     MaterialStageSpec,
     RestScriptSpec,
+    InstancesSpec,
+    TransformSpec,
+    InstanceRotation,
+    GridSpec,
+    RingSpec,
+    RandomSpec,
+    InstanceTransform,
     *GENERATORS.values(),
 )
 MODELS: dict[str, type[BaseModel]] = {c.__name__: c for c in _MODEL_CLASSES}
