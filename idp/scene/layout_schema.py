@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from idp.errors import MeshError
 from idp.mesh.layout import explicit_transform, grid_transforms, random_transforms, ring_transforms
 from idp.scene.schema_base import (
     Bool,
@@ -235,7 +236,7 @@ def _check_spec(p: str, spec: InstancesSpec, d: int, probs: list[tuple[str, str]
 def _check_transform(p: str, t: InstanceTransform, d: int, probs: list[tuple[str, str]]) -> None:
     if len(t.matrix) != d or any(len(row) != d for row in t.matrix):
         probs.append((f"{p}.matrix", f"must be {d} rows of {d} numbers for dim = {d}"))
-    elif np.linalg.det(np.asarray(t.matrix, dtype=np.float64)) <= 0:
+    elif not np.linalg.det(np.asarray(t.matrix, dtype=np.float64)) > 0:  # NaN (overflow) too
         probs.append((f"{p}.matrix", "must have a positive determinant (a mirror or a collapse inverts elements)"))
     _vec(f"{p}.translate", t.translate, d, probs)
 
@@ -316,7 +317,16 @@ def expand_instances(objects: list[SceneObject], d: int) -> tuple[list[SceneObje
             out.append(ob)
             continue
         p = f"objects[{i}].instances"
-        linear, translate = instance_arrays(ob.instances, d)
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                linear, translate = instance_arrays(ob.instances, d)
+                good = np.all(np.isfinite(translate)) and np.all(np.linalg.det(linear) > 0)
+        except (OverflowError, ValueError, MeshError) as exc:  # ranges too wide for the generator
+            probs.append((p, f"cannot make the copies' transforms ({exc})"))
+            continue
+        if not good:
+            probs.append((p, "makes a transform that is not finite or not invertible (numbers too large)"))
+            continue
         same = _same_placement(linear, translate)
         if same is not None:
             probs.append((p, f"copies {ob.name}_{same[0]} and {ob.name}_{same[1]} are placed identically"))

@@ -196,6 +196,12 @@ def test_copies_beside_other_objects_keep_their_order() -> None:
         ({"transforms": [{}, {}]}, 3, "objects[0].instances: copies ball_0 and ball_1 are placed identically"),
         ({"grid": {"counts": [100, 100, 100], "spacing": [1.0] * 3}}, 3, "objects[0].instances.grid: makes 1e+06"),
         ({"grid": {"counts": [2, 1, 1], "spacing": [1.0] * 3}, "copies": 2}, 3, "objects[0].instances.copies: unknown"),
+        ({"grid": {"counts": [3, 1, 1], "spacing": [1e308, 1.0, 1.0]}}, 3, "objects[0].instances: makes a transform"),
+        (
+            {"random": {"count": 2, "seed": 1, "translate_lo": [-1e308, 0.0, 0.0], "translate_hi": [1e308, 1.0, 1.0]}},
+            3,
+            "objects[0].instances: cannot make the copies' transforms",
+        ),
     ],
 )
 def test_schema_errors_name_the_key(instances: dict, dim: int, where: str) -> None:
