@@ -153,8 +153,13 @@ def _apply_rest_state(obj, elastic) -> dict[str, np.ndarray]:
 
 
 def _place(obj, vertices: np.ndarray, dim: int) -> np.ndarray:
+    """The object's own placement (scale, rotate about the origin, translate), then its instance transform."""
     rots = [r.degrees if dim == 2 else (tuple(r.axis), r.degrees) for r in (obj.rotate or [])]
-    return place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+    placed = place(vertices, scale=obj.scale, rotations=rots, translation=obj.translate)
+    if getattr(obj, "instance_transform", None) is not None:
+        matrix, shift = obj.instance_transform.arrays()
+        placed = placed @ matrix.T + shift
+    return placed
 
 
 def _fixed_vertices(obj, i: int, verts: np.ndarray) -> np.ndarray:
@@ -318,7 +323,8 @@ def build_scene(
     n_pairs = n_touching = 0
     if c.enabled:
         preserved, n_pairs = _input_intersections(x, all_surface, parts, dim, c.preserve_input_intersections)
-        _refuse_nested(x, parts)
+        if not c.preserve_input_intersections:
+            _refuse_nested(x, parts)
         contact = ContactModel(
             x,
             all_surface,
@@ -709,26 +715,35 @@ def _touching_crossings(touching: list[tuple[list[int], list[int]]], faces: np.n
 
 
 def _refuse_nested(x: np.ndarray, parts: list[Part]) -> None:
-    """IntersectingInputError when an object starts inside a deformable body's material (e.g. an instance or
-    an added object placed into another body): surfaces that do not cross cannot show it, the winding number
+    """IntersectingInputError when an object starts inside a deformable body's material (an instance, or an object
+    added by a stage, placed into another body): surfaces that do not cross cannot show it, the winding number
     of one of its vertices can (a body held in a cavity, such as a dumpling filling, is outside the material)."""
     from idp.mesh.containment import winding_numbers
 
     if len(parts) < 2:
         return
-    probes = np.array([int(p.vertex_ids[0]) for p in parts])
+    probes = np.array([int(p.vertex_ids[0]) if p.vertex_ids.size else -1 for p in parts])
+    nested: list[tuple[str, str]] = []
     for a in parts:
-        if a.kind != "deformable":
+        if a.kind != "deformable" or a.surface.size == 0:
             continue
-        others = [k for k, b in enumerate(parts) if b is not a]
+        lo, hi = x[a.vertex_ids].min(axis=0), x[a.vertex_ids].max(axis=0)
+        others = [
+            k
+            for k, b in enumerate(parts)
+            if b is not a and probes[k] >= 0 and np.all((lo <= x[probes[k]]) & (x[probes[k]] <= hi))
+        ]
+        if not others:
+            continue
         w = winding_numbers(x[probes[others]], x, a.surface)
-        inside = [others[j] for j in np.flatnonzero(w > 0.5)]
-        if inside:
-            b = parts[inside[0]]
-            raise IntersectingInputError(
-                f"object {b.name!r} starts inside the material of {a.name!r} (its vertex {int(probes[inside[0]])} "
-                f"at {np.round(x[probes[inside[0]]], 6).tolist()}); place it outside"
-            )
+        nested += [(parts[others[j]].name, a.name) for j in np.flatnonzero(w > 0.5)]
+    if nested:
+        shown = ", ".join(f"{b} inside {a}" for b, a in nested[:10])
+        more = f" and {len(nested) - 10} more" if len(nested) > 10 else ""
+        raise IntersectingInputError(
+            f"the start state has {len(nested)} object(s) inside another body's material: {shown}{more}. "
+            "Move or shrink them apart."
+        )
 
 
 def _describe_vertex(v: int, parts: list[Part]) -> str:
@@ -736,6 +751,29 @@ def _describe_vertex(v: int, parts: list[Part]) -> str:
         if p.vertex_ids[0] <= v <= p.vertex_ids[-1]:
             return f"{p.name}:{v - p.vertex_ids[0]}"
     return str(v)
+
+
+def _object_name(v: int, parts: list[Part]) -> str:
+    for p in parts:
+        if p.vertex_ids[0] <= v <= p.vertex_ids[-1]:
+            return p.name
+    return "?"
+
+
+def _object_pairs(keys, parts: list[Part]) -> str:
+    """Which objects intersect: ``ball_0 and ball_1 (56 pairs), ball_1 and ball_2 (56 pairs)`` (first 10)."""
+    from collections import Counter
+
+    counts: Counter = Counter()
+    for a, b in keys:
+        na, nb = _object_name(a[0], parts), _object_name(b[0], parts)
+        counts[(na, nb) if (na, nb) <= (nb, na) else (nb, na)] += 1
+    shown = [
+        (f"{a} with itself" if a == b else f"{a} and {b}") + f" ({n} pair{'s' if n > 1 else ''})"
+        for (a, b), n in sorted(counts.items())[:10]
+    ]
+    more = f" and {len(counts) - 10} more object pairs" if len(counts) > 10 else ""
+    return ", ".join(shown) + more
 
 
 def _input_intersections(x, surface, parts, dim, preserve: bool):
@@ -762,7 +800,9 @@ def _input_intersections(x, surface, parts, dim, preserve: bool):
                 + ")"
             )
         raise IntersectingInputError(
-            f"the start state has {len(keys)} intersecting surface primitive pair(s) (object:vertex ids), e.g. "
+            f"the start state has {len(keys)} intersecting surface primitive pair(s), between "
+            + _object_pairs(keys, parts)
+            + "; (object:vertex ids) e.g. "
             + "; ".join(shown)
             + ". Fix the input, or set contact.preserve_input_intersections = true to keep them"
             " (IDP then preserves, never removes, them)."

@@ -36,6 +36,16 @@ from idp.scene.conditions_schema import (
     SelectionSpec,
     SphereSpec,
 )
+from idp.scene.layout_schema import (
+    GridSpec,
+    InstanceRotation,
+    InstancesSpec,
+    InstanceTransform,
+    RandomSpec,
+    RingSpec,
+    TransformSpec,
+    expand_instances,
+)
 from idp.scene.repair_schema import REPAIR_DHAT, REPAIR_NEWTON_TOL, RepairConfig, RepairSelector
 from idp.scene.schema_base import (
     Bool,
@@ -555,6 +565,9 @@ class SceneObject(_Model):
     rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
     # deformables: rest frames (and plastic state) saved by an earlier stage (.npz), in place of `mesh`'s shape
     rest_state: Path | None = None
+    # copies of this object, each its own body `{name}_{k}` (expanded by Scene; idp/scene/layout_schema.py)
+    instances: InstancesSpec | None = None
+    instance_transform: InstanceTransform | None = None  # one copy's map, after scale/rotate/translate
 
     @field_validator("scale", mode="before")
     @classmethod
@@ -744,6 +757,8 @@ class Scene(_Model):
                 probs.append((f"{p}.kind", "shells are triangle surfaces in 3D (dim = 3)"))
             if ob.uv and d != 2:
                 probs.append((f"{p}.uv", "a UV map is simulated in its 2D texture plane (dim = 2)"))
+        self.objects, layout_probs = expand_instances(self.objects, d)  # checked above in the file's numbering
+        probs.extend(layout_probs)
         vec("gravity", self.gravity)
         check_stages(self, probs)
         if not any(ob.kind in ("deformable", "shell") for ob in self.objects) and not self.stages:
@@ -852,6 +867,13 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     StageObjectSettings,
     AnchorSpec,
     RemeshSpec,
+    InstancesSpec,
+    TransformSpec,
+    InstanceRotation,
+    GridSpec,
+    RingSpec,
+    RandomSpec,
+    InstanceTransform,
     *GENERATORS.values(),
 )
 # the stage models name these classes; complete them now that they exist
