@@ -210,6 +210,7 @@ def _print_summary(result, out: Path) -> None:
         lines.append(f"output:             {s['repaired_sequence']} (report.md, report.json, stats.json in {out}/)")
     else:
         names = ("obj", "vtu", "frames.pvd", "stats.json", "frames.png", "report.md", "report.json", "distortion.png")
+        names += ("stages", "stages.json", "final")  # a staged modeling scene
         present = [n + ("/" if (out / n).is_dir() else "") for n in names if (out / n).exists()]
         lines.append(f"output:             {out}/ ({', '.join(present)})")
     print("\n".join(lines))
