@@ -209,8 +209,8 @@ def _print_summary(result, out: Path) -> None:
     if s.get("repaired_sequence"):
         lines.append(f"output:             {s['repaired_sequence']} (report.md, report.json, stats.json in {out}/)")
     else:
-        names = ("obj", "vtu", "frames.pvd", "stats.json", "frames.png", "report.md", "report.json", "distortion.png")
-        names += ("stages", "stages.json", "final")  # a staged modeling scene
+        names: tuple[str, ...] = ("obj", "vtu", "frames.pvd", "stats.json", "frames.png", "report.md")
+        names += ("report.json", "distortion.png", "stages", "stages.json", "final")  # the last three: staged
         present = [n + ("/" if (out / n).is_dir() else "") for n in names if (out / n).exists()]
         lines.append(f"output:             {out}/ ({', '.join(present)})")
     print("\n".join(lines))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from idp.scene.schema import Scene
 
 def _scene(**over) -> Scene:
     """A small plastic ball squeezed by a hanging weight of gravity onto a floor, then relaxed (two stages)."""
-    d = {
+    d: dict[str, Any] = {
         "name": "two",
         "dim": 3,
         "gravity": [0.0, -9.8, 0.0],
