@@ -653,6 +653,7 @@ def _build_handles(scene, deformables, kinematic, object_ids, x, pinned, dt: flo
                 end=hs.end,
                 release=hs.release,
                 select_on=hs.select_on,
+                incremental=hs.motion.incremental,
             )
             try:
                 if hs.select_on == "rest":
@@ -677,6 +678,7 @@ def _build_handles(scene, deformables, kinematic, object_ids, x, pinned, dt: flo
             motion_from_spec(km.motion, f"{key}.motion", dt),
             start=km.start,
             end=km.end,
+            incremental=km.motion.incremental,
         )
         h.select(x)
         handles.append(h)

@@ -96,6 +96,8 @@ class MotionSpec(_Model):
     - ``rotate``: ``degrees_per_second`` about ``axis`` (3D) through ``center``;
     - ``scale``: factor 1 + ``rate``·t (scalar or per axis) about ``center``; ``law = "exponential"``: e^{rate·t},
       the same fraction per unit time (the authors' ``scaleVel = −0.1`` per step is rate = ln(0.9)/√h);
+    - ``incremental = true`` (translate, rotate, scale): each step's targets are one step of the motion applied
+      to where the vertices are at the step's start, so a blocked handle is not pushed further and further;
     - ``keyframes``: ``keyframes`` (at least two, increasing ``step``), ``interpolation`` linear or smooth,
       about ``center``;
     - ``targets``: final positions reached in ``quota`` steps (§4.3), either ``offset`` (added to the
@@ -109,6 +111,8 @@ class MotionSpec(_Model):
     center: list[Float] | None = None
     rate: Scale | None = None
     law: Literal["linear", "exponential"] = "linear"
+    # each step's targets: one step of the motion applied to where the vertices are (not to where they started)
+    incremental: Bool = False
     keyframes: list[KeyframeSpec] | None = None
     interpolation: Literal["linear", "smooth"] = "linear"
     offset: list[Float] | None = None
@@ -138,6 +142,8 @@ class MotionSpec(_Model):
                 probs.append((k, f"not used by type = {self.type!r}"))
         if self.type == "targets" and (self.offset is None) == (self.file is None):
             probs.append(("", "type = 'targets' needs exactly one of `offset` or `file`"))
+        if self.incremental and self.type in ("targets", "keyframes", "fixed"):
+            probs.append(("incremental", f"not used by type = {self.type!r} (its targets are positions, not rates)"))
         if self.type != "scale" and self.law != "linear":
             probs.append(("law", "only used by type = 'scale'"))
         if self.type != "targets" and self.quota != 1:

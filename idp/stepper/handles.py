@@ -42,8 +42,12 @@ class Handle:
     end: int | None = None
     release: int | None = None
     select_on: str = "rest"
+    # targets of each step from where the handle's vertices are at its start (one dt of the motion), not from
+    # where the handle started: a blocked handle is not pushed further (the authors' per-step scaleVel)
+    incremental: bool = False
     vertices: np.ndarray | None = None  # global ids, set when selected
     X: np.ndarray | None = None  # positions when it started acting
+    held: np.ndarray | None = None  # incremental handles past `end`: the positions they hold
 
     def select(self, positions: np.ndarray) -> np.ndarray:
         """Select on ``positions`` (the whole scene's (n, d)); raises SceneError when nothing is selected."""
@@ -71,6 +75,13 @@ class Handle:
             self.X = x[self.vertices].copy()
         k = step if self.end is None else min(step, self.end)
         m = self.motion
+        if self.incremental:
+            cur = x[self.vertices]
+            if k < step:  # past the end of the motion: hold where it left the vertices
+                if self.held is None:
+                    self.held = cur.copy()
+                return self.held
+            return m.targets(cur, dt)
         if isinstance(m, PathTargets):
             left = self.start + m.quota - k + 1
             cur = x[self.vertices]
@@ -84,6 +95,8 @@ class Handle:
             out["vertices"] = self.vertices
         if self.X is not None:
             out["X"] = self.X
+        if self.held is not None:
+            out["held"] = self.held
         return out
 
     def load_state(self, st: dict[str, np.ndarray]) -> None:
@@ -91,6 +104,8 @@ class Handle:
             self.vertices = np.asarray(st["vertices"], dtype=np.int64)
         if "X" in st:
             self.X = np.asarray(st["X"], dtype=float)
+        if "held" in st:
+            self.held = np.asarray(st["held"], dtype=float)
 
 
 @dataclass

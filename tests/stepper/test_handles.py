@@ -448,3 +448,38 @@ def test_generated_solid_as_a_kinematic_obstacle_uses_its_boundary(tmp_path):
     res = simulate(s, tmp_path, progress=False)
     recs = certified(res)
     assert max(r["contacts"] for r in recs) > 0  # it reached the beam and pushed it
+
+
+def test_incremental_and_exponential_scale_handles():
+    """An exponential scale shrinks by the same fraction each step; an incremental handle applies one step of its
+    motion to where its vertices are (a blocked handle is not pushed further), and holds after its end."""
+    from idp.mesh.selection import Selection
+    from idp.stepper.handles import Handle
+    from idp.stepper.motions import Scale
+
+    x = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 2.0], [5.0, 5.0, 5.0]])
+    rate, dt = np.log(0.9) / 0.04, 0.04
+    law = Scale(np.array([rate, 0.0, rate]), 0.0, "exponential")
+    np.testing.assert_allclose(law.targets(x[:2], 3 * dt), x[:2] * [0.9**3, 1.0, 0.9**3], rtol=1e-12)
+    ids = np.arange(3)
+    absolute = Handle("a", ids, Selection(indices=np.array([0, 1])), law, end=3)
+    incremental = Handle("i", ids, Selection(indices=np.array([0, 1])), law, end=3, incremental=True)
+    blocked = x.copy()  # the vertices did not move at all during the first two steps
+    for step in (1, 2, 3):
+        t_abs = absolute.targets(step, blocked, dt)
+        t_inc = incremental.targets(step, blocked, dt)
+    np.testing.assert_allclose(t_abs, x[:2] * [0.9**3, 1.0, 0.9**3], rtol=1e-12)  # ran away from the vertices
+    np.testing.assert_allclose(t_inc, x[:2] * [0.9, 1.0, 0.9], rtol=1e-12)  # one step from where they are
+    moved = blocked.copy()
+    moved[:2] *= 0.5
+    np.testing.assert_allclose(incremental.targets(4, moved, dt), moved[:2])  # past the end: held
+    np.testing.assert_allclose(incremental.targets(5, blocked, dt), moved[:2])
+
+
+def test_incremental_is_refused_for_position_motions():
+    from idp.scene.conditions_schema import MotionSpec
+
+    with pytest.raises(Exception, match="incremental"):
+        MotionSpec(type="fixed", incremental=True)
+    with pytest.raises(Exception, match="law"):
+        MotionSpec(type="translate", velocity=[0, 1, 0], law="exponential")
