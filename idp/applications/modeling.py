@@ -269,8 +269,11 @@ def _load_done(path: Path) -> dict | None:
 
 
 def _write_json(path: Path, data: dict) -> None:
+    """Atomically, with the stats' JSON conventions (numpy values, paths, ±inf as strings)."""
+    from idp.output.stats import to_jsonable
+
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
+    tmp.write_text(json.dumps(to_jsonable(data), indent=2, allow_nan=False))
     tmp.replace(path)
 
 

@@ -47,6 +47,7 @@ from idp.scene.schema_base import (
     NonNegInt,
     PosFloat,
     PosInt,
+    Rotation,
     Scale,
     _check_box,
     _check_scale,
@@ -63,25 +64,11 @@ MAX_INSTANCES = 10_000
 GENERATOR_KEYS = ("transforms", "grid", "ring", "rings", "random")
 
 
-class InstanceRotation(_Model):
-    """A rotation of one copy about the origin; ``axis`` only in 3D (2D rotates in the plane)."""
-
-    axis: list[Float] | None = None
-    degrees: Float
-
-    @field_validator("axis")
-    @classmethod
-    def _nonzero(cls, v: list[float] | None) -> list[float] | None:
-        if v is not None and not any(x != 0 for x in v):
-            raise ValueError("must be non-zero")
-        return v
-
-
 class TransformSpec(_Model):
     """One explicit copy: scale, then rotations in order about the origin, then translate."""
 
     scale: Scale = 1.0
-    rotate: list[InstanceRotation] = Field(default_factory=list)
+    rotate: list[Rotation] = Field(default_factory=list)
     translate: list[Float] | None = None
 
     @field_validator("scale", mode="before")

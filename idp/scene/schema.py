@@ -38,7 +38,6 @@ from idp.scene.conditions_schema import (
 )
 from idp.scene.layout_schema import (
     GridSpec,
-    InstanceRotation,
     InstancesSpec,
     InstanceTransform,
     RandomSpec,
@@ -57,6 +56,7 @@ from idp.scene.schema_base import (
     PosVec3,
     Res2,
     Res3,
+    Rotation,
     Scale,
     Vec2,
     Vec3,
@@ -244,20 +244,6 @@ class FixedSelector(_Model):
         if self.box is not None:
             check_corner_box(self.box)
         return self
-
-
-class Rotation(_Model):
-    """Rotation about the origin; ``axis`` only in 3D (2D rotates in the plane)."""
-
-    axis: list[Float] | None = None
-    degrees: Float
-
-    @field_validator("axis")
-    @classmethod
-    def _nonzero(cls, v: list[float] | None) -> list[float] | None:
-        if v is not None and not any(x != 0 for x in v):
-            raise ValueError("must be non-zero")
-        return v
 
 
 # ---------------------------------------------------------------------------------------------
@@ -869,7 +855,6 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     RemeshSpec,
     InstancesSpec,
     TransformSpec,
-    InstanceRotation,
     GridSpec,
     RingSpec,
     RandomSpec,

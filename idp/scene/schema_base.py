@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
 from pydantic_core import PydanticCustomError
 
 from idp.errors import SceneError
@@ -118,3 +118,17 @@ def check_corner_box(box: list[list[float]]) -> None:
     probs = _check_box(box[0], box[1], strict=False)
     if probs:
         raise rule_error([("box", probs[0][1])])
+
+
+class Rotation(_Model):
+    """Rotation about the origin; ``axis`` only in 3D (2D rotates in the plane)."""
+
+    axis: list[Float] | None = None
+    degrees: Float
+
+    @field_validator("axis")
+    @classmethod
+    def _nonzero(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and not any(x != 0 for x in v):
+            raise ValueError("must be non-zero")
+        return v

@@ -132,6 +132,8 @@ def check_stages(scene, probs: list[tuple[str, str]]) -> None:
     vector lengths, remeshing only of 3D volumes. Appends ``(key path, message)`` to ``probs``."""
     if not scene.stages:
         return
+    from idp.scene.schema import _motion_vectors  # the checks every object's motions get
+
     d = scene.dim
     if scene.repair is not None or scene.flow is not None:
         probs.append(("stages", "stages are for modeling scenes, not a normal flow or an animation repair"))
@@ -188,12 +190,8 @@ def check_stages(scene, probs: list[tuple[str, str]]) -> None:
                     if getattr(s, key) is not None:
                         probs.append((f"{q}.{key}", f"not used by a {kind} object"))
             if s.motion is not None:
-                from idp.scene.schema import _motion_vectors
-
                 _motion_vectors(f"{q}.motion.motion", s.motion.motion, d, probs)
             for j, hd in enumerate(s.handles or []):
-                from idp.scene.schema import _motion_vectors
-
                 _motion_vectors(f"{q}.handles[{j}].motion", hd.motion, d, probs)
         for name, what in st.after.items():
             q = f"{p}.after.{name}"
