@@ -11,7 +11,7 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[cholmod,test,lint,usd,remesh]'
+	$(BIN)/pip install --quiet -e '.[cholmod,test,lint,usd,remesh,batch]'
 	touch $(STAMP)
 
 demo: $(STAMP)
