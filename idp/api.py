@@ -19,6 +19,7 @@ from idp.errors import SceneError
 from idp.fs import check_output_dir, make_output_dir
 from idp.scene.build import BuiltScene, build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
+from idp.scene.resume_check import check_resume_scene
 from idp.scene.schema import Scene
 from idp.solver.linear import make_linear_solver
 from idp.stepper.run import RunResult, run_simulation
@@ -33,6 +34,7 @@ def simulate(
     steps: int | None = None,
     progress: bool = True,
     resume: bool = False,
+    force_resume: bool = False,
     check_every_iterate: bool | None = None,
     targets: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> RunResult:
@@ -40,7 +42,10 @@ def simulate(
 
     ``targets(step, x)``: Dirichlet targets streamed from code (paper §4.5), called before each step with the
     current positions (n, d) of the whole scene; it returns (global vertex ids, (k, d) targets) or None.
-    They are resolved like a scene's handles (feasible move, adaptive penalty, hold once met)."""
+    They are resolved like a scene's handles (feasible move, adaptive penalty, hold once met).
+
+    ``resume``: continue the interrupted run in ``out_dir`` from its checkpoint; refused when the scene differs
+    from the one it was started with (other than ``time.steps`` / ``output.dir``) unless ``force_resume``."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
@@ -50,29 +55,39 @@ def simulate(
 
         if targets is not None or check_every_iterate:
             raise SceneError("simulate: `targets` and `check_every_iterate` are not available for a repair scene")
-        return run_repair(scene, out, progress=progress, resume=resume, steps=steps)
+        return run_repair(scene, out, progress=progress, resume=resume, steps=steps, force_resume=force_resume)
     if scene.stages:  # a multi-stage modeling scene: one run per stage (idp.applications.modeling)
         from idp.applications.modeling import run_stages
 
         if targets is not None or check_every_iterate or steps is not None:
             raise SceneError("simulate: `targets`, `check_every_iterate` and `steps` are per stage in a staged scene")
-        return run_stages(scene, out, progress=progress, resume=resume)  # type: ignore[return-value]
+        return run_stages(scene, out, progress=progress, resume=resume, force_resume=force_resume)  # type: ignore[return-value]
     # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
     built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
     if targets is not None:
         from idp.stepper.handles import HandleSet
 
         next(c for c in built.system.conditions if isinstance(c, HandleSet)).stream = targets
-    return run_built(scene, built, out, progress=progress, resume=resume)
+    return run_built(scene, built, out, progress=progress, resume=resume, force_resume=force_resume)
 
 
 def run_built(
-    scene: Scene, built: BuiltScene, out: Path, *, progress: bool = True, resume: bool = False, writer=None
+    scene: Scene,
+    built: BuiltScene,
+    out: Path,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+    force_resume: bool = False,
+    writer=None,
 ) -> RunResult:
     """Run a built scene into ``out`` (scene files, frames, stats, checkpoint): the one path every driver takes.
-    ``writer``: the frame writer when not the default OBJ/VTU/PVD one (animation repair's sequence writer)."""
+    ``writer``: the frame writer when not the default OBJ/VTU/PVD one (animation repair's sequence writer).
+    A resume is refused when ``scene`` is not the one the run was started with (unless ``force_resume``)."""
     make_output_dir(out)
     resolved = resolved_scene_dict(scene)
+    if resume:
+        check_resume_scene(out, resolved, force=force_resume)
     (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
     (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
     built.run.progress = progress

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -37,6 +38,15 @@ def _set_threads(n: int | None) -> None:
     ipctk.set_num_threads(n)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a job scheduler, ``kill``, a container stop): handled exactly like Ctrl-C — the step under way
+    is dropped, everything finished stays on disk, exit code 130, and ``--resume`` goes on."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def demo_scene_path() -> Path:
     return Path(__file__).parent / "scenes" / "demo_hourglass.toml"
 
@@ -54,6 +64,7 @@ def _cmd_run(args) -> int:
         steps=args.steps,
         progress=not args.quiet,
         resume=args.resume,
+        force_resume=args.force,
         check_every_iterate=True if args.check_iterates else None,
     )
     return _finish(result, Path(out))
@@ -78,7 +89,7 @@ def _cmd_flow(args) -> int:
         newton_tol=args.newton_tol,
         output_dir=out,
     )
-    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
+    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume, force_resume=args.force)
     return _finish(result, out)
 
 
@@ -99,7 +110,7 @@ def _cmd_font(args) -> int:
         steps=args.steps,
         dhat=args.dhat,
     )
-    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume)
+    result = run_flow(scene, out, progress=not args.quiet, resume=args.resume, force_resume=args.force)
     return _finish(result, out)
 
 
@@ -123,7 +134,7 @@ def _cmd_repair(args) -> int:
         bending=args.bending,
         newton_tol=args.newton_tol,
     )
-    result = run_repair(scene, out, progress=not args.quiet, resume=args.resume)
+    result = run_repair(scene, out, progress=not args.quiet, resume=args.resume, force_resume=args.force)
     return _finish(result, out)
 
 
@@ -142,7 +153,13 @@ def _cmd_uv(args) -> int:
     )
     out = Path(args.output)
     result, report = run_uv(
-        scene, out, report_dir=args.report, overwrite=args.overwrite, progress=not args.quiet, resume=args.resume
+        scene,
+        out,
+        report_dir=args.report,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        resume=args.resume,
+        force_resume=args.force,
     )
     b, a = report["before"], report["after"]
     print(
@@ -265,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--steps", type=int, help="override time.steps")
     r.add_argument("--threads", type=_thread_count, help="threads for kernels, contact and BLAS")
     r.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    r.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     r.add_argument("--check-iterates", action="store_true", help="certify every Newton iterate, not only every frame")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
@@ -293,6 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("-o", "--output", default="out/flow")
     f.add_argument("--threads", type=_thread_count)
     f.add_argument("--resume", action="store_true")
+    f.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     f.add_argument("-q", "--quiet", action="store_true")
     f.set_defaults(func=_cmd_flow)
 
@@ -308,6 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", default="out/font")
     t.add_argument("--threads", type=_thread_count)
     t.add_argument("--resume", action="store_true")
+    t.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     t.add_argument("-q", "--quiet", action="store_true")
     t.set_defaults(func=_cmd_font)
 
@@ -339,6 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex / dt to stop at (default 1e-3)")
     rp.add_argument("--threads", type=_thread_count)
     rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")
+    rp.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     rp.add_argument("-q", "--quiet", action="store_true")
     rp.set_defaults(func=_cmd_repair)
 
@@ -355,6 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--report", help="folder for report, pictures and stats (default: OUTPUT's stem + _uv)")
     u.add_argument("--threads", type=_thread_count)
     u.add_argument("--resume", action="store_true")
+    u.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     u.add_argument("-q", "--quiet", action="store_true")
     u.set_defaults(func=_cmd_uv)
 
@@ -387,6 +409,10 @@ def main(argv: list[str] | None = None) -> int:
     from idp.errors import CertificateError, IdpError, SolverError
 
     try:
+        previous_handler = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # main() called from a thread other than the main one: SIGTERM keeps its handler
+        previous_handler = None
+    try:
         return int(args.func(args) or 0)
     except CertificateError as exc:
         print(f"idp: certificate failure: {exc}", file=sys.stderr)
@@ -397,8 +423,9 @@ def main(argv: list[str] | None = None) -> int:
     except IdpError as exc:
         print(f"idp: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
-    except KeyboardInterrupt:
-        print("idp: interrupted; finished steps are on disk (resume with --resume)", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"idp: {what}; finished steps are on disk (resume with --resume)", file=sys.stderr)
         return EXIT_INTERRUPTED
     except MemoryError as exc:
         # the last resort: e.g. one vertex 10^11 away in a UV layout made Newton's steps so long that ipctk's CCD
@@ -413,6 +440,9 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, AttributeError):
             pass
         return EXIT_BROKEN_PIPE
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
 
 
 if __name__ == "__main__":

@@ -24,10 +24,12 @@ from typing import Any
 
 import numpy as np
 
+from idp._faults import kill_point
 from idp.errors import IdpError, SceneError
 from idp.fs import check_output_dir, make_output_dir
 from idp.mesh.types import SurfaceMesh, VolumeMesh
-from idp.scene.load import dump_scene_toml
+from idp.scene.load import dump_scene_toml, resolved_scene_dict
+from idp.scene.resume_check import check_resume_scene
 from idp.scene.schema import Scene, SceneObject
 from idp.scene.stages_schema import StageSpec
 from idp.stepper.stage_state import write_rest_state, write_shape
@@ -284,6 +286,7 @@ def run_stages(
     progress: bool = True,
     resume: bool = False,
     stop_after: int | None = None,
+    force_resume: bool = False,
 ) -> StagedResult:
     """Run every stage of ``scene`` into ``out_dir`` (``OUT/stages/NN_name/`` per stage, ``OUT/final/`` the last
     shapes, ``OUT/stages.json`` the per-stage figures). ``stop_after``: run only stages 0..stop_after (then a
@@ -295,6 +298,10 @@ def run_stages(
         raise SceneError("run_stages: the scene has no `stages`")
     out = make_output_dir(check_output_dir(out_dir))
     _check_mesher(scene)
+    resolved = resolved_scene_dict(scene)
+    if resume:  # the whole staged scene, also its stages already done (each stage run checks its own too)
+        check_resume_scene(out, resolved, force=force_resume)
+    (out / "scene.resolved.json").write_text(json.dumps(resolved, indent=2))
     (out / "scene.resolved.toml").write_text(dump_scene_toml(scene))
     states: dict[str, ObjectState] = {ob.name: ObjectState(ob, 0) for ob in scene.objects}
     result = StagedResult(out)
@@ -327,8 +334,9 @@ def run_stages(
             built = build_scene(stage_scene)
         except IdpError as exc:  # bad input of this stage: said with the stage's name
             raise type(exc)(f"stages[{k}] ({stage.name}): {exc}") from exc
-        run = run_built(stage_scene, built, sdir, progress=progress, resume=resume)
+        run = run_built(stage_scene, built, sdir, progress=progress, resume=resume, force_resume=force_resume)
         objects_rec = _write_end_states(built, run, stage, k, sdir, states, taking)
+        kill_point("stage")  # crash-safety tests only: end states written, the done marker not yet
         s = run.summary
         summary = {
             "stage": stage.name,

@@ -66,7 +66,9 @@ def flow_scene(
     return scene_from_dict(doc)
 
 
-def run_flow(scene: Scene, out_dir: str | Path, *, progress: bool = True, resume: bool = False):
+def run_flow(
+    scene: Scene, out_dir: str | Path, *, progress: bool = True, resume: bool = False, force_resume: bool = False
+):
     """Run a flow scene (from :func:`flow_scene` or a scene file with ``[flow]``); return the RunResult."""
     if scene.flow is None:
         from idp.errors import SceneError
@@ -74,4 +76,4 @@ def run_flow(scene: Scene, out_dir: str | Path, *, progress: bool = True, resume
         raise SceneError("flow: the scene has no [flow] section")
     from idp.api import simulate
 
-    return simulate(scene, out_dir, progress=progress, resume=resume)
+    return simulate(scene, out_dir, progress=progress, resume=resume, force_resume=force_resume)

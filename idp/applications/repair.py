@@ -192,7 +192,13 @@ class RepairFrameWriter:
 
 
 def run_repair(
-    scene: Scene, out_dir: str | Path, *, progress: bool = True, resume: bool = False, steps: int | None = None
+    scene: Scene,
+    out_dir: str | Path,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+    steps: int | None = None,
+    force_resume: bool = False,
 ):
     """Repair the scene's sequence into ``out_dir``: the repaired sequence, stats.json, report.json/.md and
     pictures; returns the RunResult (``summary["repair"]`` holds the sequence figures)."""
@@ -213,7 +219,7 @@ def run_repair(
     frames = cond.frames[: built.run.steps + 1]  # a step cap (bench, --steps) repairs the first frames only
     writer = RepairFrameWriter(sequence_writer(seq_out, seq.faces, like=seq, format=fmt, frames=frames), cond)
     writer.last_step = len(frames) - 1
-    result = run_built(scene, built, out, progress=progress, resume=resume, writer=writer)
+    result = run_built(scene, built, out, progress=progress, resume=resume, force_resume=force_resume, writer=writer)
     from idp.mesh.sequence import open_sequence
     from idp.output.repair_report import write_repair_report
 

@@ -76,6 +76,7 @@ def run_uv(
     overwrite: bool = False,
     progress: bool = True,
     resume: bool = False,
+    force_resume: bool = False,
 ) -> tuple[Any, dict]:
     """Improve the UV layout of the scene's ``uv`` object; write ``out_obj`` and the report. Returns
     (RunResult, report dict). Nothing is written when the input is refused (flipped or overlapping layout,
@@ -116,7 +117,7 @@ def run_uv(
             "--preserve-overlaps (no new overlap is ever added)"
         )
     rep_dir = Path(report_dir) if report_dir is not None else default_report_dir(out)
-    result = run_built(scene, built, rep_dir, progress=progress, resume=resume)
+    result = run_built(scene, built, rep_dir, progress=progress, resume=resume, force_resume=force_resume)
     after = result.x[: before.shape[0]]
     from idp.mesh.uv_obj import write_uv_obj
 

@@ -20,6 +20,7 @@ from xml.sax.saxutils import quoteattr
 import meshio
 import numpy as np
 
+from idp._faults import kill_point
 from idp.output.parts import Part, check_parts
 
 _OBJ_FLOAT = "%.10g"
@@ -30,6 +31,7 @@ def _atomic_write_text(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(text)
+    kill_point("pvd" if path.suffix == ".pvd" else "frame_tmp")
     os.replace(tmp, path)
 
 
@@ -211,18 +213,41 @@ class FrameWriter:
             rel = f"obj/{stem}.obj"
             _atomic_write_text(self.out_dir / rel, self._obj_text(x))
             written["obj"] = rel
+            kill_point("frame_between")
         if self.write_vtu:
             rel = f"vtu/{stem}.vtu"
             mesh = self._vtu_mesh(x, point_data, cell_data)
             target = self.out_dir / rel
             tmp = target.with_name(target.name + ".tmp")
             meshio.write(tmp, mesh, file_format="vtu", binary=True, compression="zlib")
+            kill_point("frame_tmp")
             os.replace(tmp, target)
             written["vtu"] = rel
             self._pvd_entries[frame] = (t, rel)
             _atomic_write_text(self.out_dir / "frames.pvd", self._pvd_text())
             written["pvd"] = "frames.pvd"
         return written
+
+    def resume(self, last_frame: int, time_of) -> None:
+        """Continue an interrupted series after frame ``last_frame``: adopt the frames on disk up to it (their PVD
+        times ``time_of(frame)``, the formula they were written with), remove later frames and temporary files an
+        interruption left (they are rewritten by the resumed run), and rewrite the PVD index."""
+        pattern = re.compile(r"frame_(\d{5,})\.(obj|vtu)$")
+        for sub in ("obj", "vtu"):
+            folder = self.out_dir / sub
+            if not folder.is_dir():
+                continue
+            for f in sorted(folder.iterdir()):
+                m = pattern.match(f.name)
+                if f.name.endswith(".tmp") or (m is not None and int(m.group(1)) > last_frame):
+                    f.unlink(missing_ok=True)
+                elif m is not None and sub == "vtu" and self.write_vtu:
+                    frame = int(m.group(1))
+                    self._pvd_entries[frame] = (float(time_of(frame)), f"vtu/{f.name}")
+        for f in self.out_dir.glob("*.tmp"):
+            f.unlink(missing_ok=True)
+        if self.write_vtu:
+            _atomic_write_text(self.out_dir / "frames.pvd", self._pvd_text())
 
     def close(self) -> None:
         """Finish the series (the PVD is already complete after every write); further writes fail."""

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from idp._faults import kill_point
+
 _NONFINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
 
 
@@ -143,6 +145,7 @@ class StatsRecorder:
         tmp = self.path.with_name(self.path.name + ".tmp")
         with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
+        kill_point("stats")
         os.replace(tmp, self.path)
 
 

@@ -196,6 +196,26 @@ class GrowingBlockPattern:
         self.folds += 1
         return True
 
+    def state(self) -> dict[str, np.ndarray]:
+        """What the pattern has accumulated (the extra couplings, its counters), for a run's checkpoint: the
+        pattern decides which couplings are folded and the fill-reducing ordering, so a resumed run needs it
+        to take the very iterates of an uninterrupted one."""
+        return {"extra": self.extra.copy(), "counters": np.array([self.folds, self.growths], dtype=np.int64)}
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`state` (nothing when ``state`` is empty: a checkpoint written before it existed)."""
+        extra = state.get("extra")
+        if extra is None:
+            return
+        extra = np.asarray(extra, dtype=np.int64).reshape(-1)
+        n = self.base.nfv
+        if extra.size and (extra.min() < 0 or extra.max() >= n * n or np.any(np.diff(extra) <= 0)):
+            raise ValueError("the checkpoint's contact pattern does not fit this scene")
+        self._set_extra(extra)
+        counters = state.get("counters")
+        if counters is not None and np.asarray(counters).shape == (2,):
+            self.folds, self.growths = (int(v) for v in counters)
+
     def _full_data(self, base_data: np.ndarray) -> np.ndarray:
         if self._base_to_full is None:
             return base_data.copy()

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from idp._faults import kill_point
 from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
@@ -380,6 +381,7 @@ class StepSolver:
                 if s.contact.kappa != kappa_before:  # the objective changed: re-evaluate it
                     energy, el, bar = self._energy(x, x_prev, ev)
             self._check_iterate(x, it, res)
+            kill_point("newton")  # crash-safety tests only (idp._faults); nothing otherwise
             changed = False
             if c is not None:
                 in_contact = ev is not None and ev.num_active > 0

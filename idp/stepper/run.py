@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from idp._faults import kill_point
 from idp.contact.certificate import Certifier
 from idp.errors import CertificateError, SolverError
 from idp.output.frames import FrameWriter
@@ -63,6 +64,9 @@ def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
         if hasattr(cond, "state"):
             for k, v in cond.state().items():
                 extra[f"cond{i}__{k}"] = v
+    if getattr(system, "contact_pattern", None) is not None:
+        for k, v in system.contact_pattern.state().items():
+            extra[f"pattern__{k}"] = v
     np.savez(
         tmp,
         x=x,
@@ -71,14 +75,21 @@ def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
         kappa_max=system.contact.kappa_max if system.contact else 0.0,
         **extra,
     )
+    kill_point("checkpoint")
     tmp.replace(path)
 
 
-def _load_condition_states(ck: dict[str, np.ndarray], system) -> None:
+def _load_condition_states(ck: dict[str, np.ndarray], system, path: Path) -> None:
+    """Restore the per-step conditions' state and the Newton matrix's contact pattern from a checkpoint."""
     for i, cond in enumerate(system.conditions):
         if hasattr(cond, "load_state"):
             pre = f"cond{i}__"
             cond.load_state({k[len(pre) :]: v for k, v in ck.items() if k.startswith(pre)})
+    if getattr(system, "contact_pattern", None) is not None:
+        try:
+            system.contact_pattern.load_state({k[9:]: v for k, v in ck.items() if k.startswith("pattern__")})
+        except ValueError as exc:
+            raise SolverError(f"checkpoint {path}: {exc}; remove it to start the run over") from None
 
 
 def _read_checkpoint(path: Path) -> dict[str, np.ndarray]:
@@ -116,16 +127,23 @@ def _cell_data(system) -> dict | None:
     return out or None
 
 
-def _previous_records(path: Path) -> list[dict]:
-    """The step records of an interrupted run's stats.json (none if it is missing or unreadable)."""
+def _previous_stats(path: Path, last_step: int) -> tuple[list[dict], list[dict]]:
+    """The records an interrupted run's stats.json holds for its start state and its steps up to ``last_step``
+    (those after it are redone), and its list of earlier resumes; none if it is missing or unreadable."""
     from idp.output.stats import load_stats
 
     try:
-        steps = load_stats(path)["steps"]
-    except (OSError, ValueError, KeyError):
+        stats = load_stats(path)
+        steps, resumes = list(stats["steps"]), list((stats.get("summary") or {}).get("resumes", []))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         log.warning("%s: the earlier steps' statistics could not be read; the resumed stats start here", path)
-        return []
-    return [r for r in steps if not r.get("initial") and int(r.get("step", 0)) >= 1]
+        return [], []
+    kept = []
+    for r in steps:
+        step = int(r.get("step", 0))
+        if (r.get("initial") and step == 0) or (not r.get("initial") and 1 <= step <= last_step):
+            kept.append(r)
+    return kept, [r for r in resumes if int(r.get("after_step", 0)) <= last_step]
 
 
 def _fill_fraction(system, x) -> float | None:
@@ -172,12 +190,14 @@ def run_simulation(
             fixed_mask=~system.free_mask.reshape(-1, system.dim).any(axis=1),
         )
     checkpoint = out / "checkpoint.npz"
-    earlier = _previous_records(out / "stats.json") if settings.resume and checkpoint.exists() else []
-    stats = StatsRecorder(out / "stats.json", meta)
+    stats_path = out / "stats.json"
     solver = StepSolver(system, newton, linear, certifier=certifier)
+    x_initial = system.x.copy()  # the start state (frame 0), also when resuming from a later checkpoint
 
     start_step = 0
-    previous: list[dict] = []  # the finished steps of the interrupted run, kept in stats.json and the summary
+    previous: list[dict] = []  # the interrupted run's records (start state, finished steps), kept as they were
+    resumes: list[dict] = []  # where this run was resumed, with the certificate of the state it resumed from
+    Path(str(checkpoint) + ".tmp.npz").unlink(missing_ok=True)  # a checkpoint write that was interrupted
     if settings.resume and checkpoint.exists():
         ck = _read_checkpoint(checkpoint)
         if ck["x"].shape != system.x.shape:
@@ -188,22 +208,31 @@ def run_simulation(
         start_step = int(ck["step"])
         if system.contact is not None:
             system.contact.kappa, system.contact.kappa_max = float(ck["kappa"]), float(ck["kappa_max"])
-        _load_condition_states(ck, system)
-        previous = [r for r in earlier if int(r.get("step", 0)) <= start_step]
+        _load_condition_states(ck, system, checkpoint)
+        previous, resumes = _previous_stats(stats_path, start_step)
         log.info("resuming %s after step %d", out, start_step)
+    if hasattr(writer, "resume") and start_step > 0:  # adopt the finished frames, drop any later or torn ones
+        writer.resume(start_step, lambda frame: frame * math.sqrt(system.h))
+    stats = StatsRecorder(stats_path, meta)
 
     x0 = system.x.copy()
     cert0 = certifier.check(x0)
     if not cert0.ok:
-        raise CertificateError(f"the start state fails the injectivity check: {cert0.describe()}")
+        what = "start state" if start_step == 0 else f"checkpoint state (step {start_step})"
+        raise CertificateError(f"the {what} fails the injectivity check: {cert0.describe()}")
     if start_step == 0:
         writer.write(0, x0, time=0.0)
-    fill0 = _fill_fraction(system, x0)
+    fill0 = _fill_fraction(system, x_initial)
     for earlier_record in previous:
         stats.add_step(earlier_record)
-    rec0: dict[str, Any] = {"step": start_step, "certificate": cert0.to_dict(), "fill_fraction": fill0, "initial": True}
-    rec0.update(_condition_reports(system, x0))
-    stats.add_step(rec0)
+    if start_step == 0 or not any(r.get("initial") for r in previous):
+        rec0: dict[str, Any] = {"step": start_step, "certificate": cert0.to_dict()}
+        rec0["fill_fraction"] = _fill_fraction(system, x0)
+        rec0["initial"] = True
+        rec0.update(_condition_reports(system, x0))
+        stats.add_step(rec0)
+    if start_step > 0:
+        resumes.append({"after_step": start_step, "certificate": cert0.to_dict()})
 
     progress = None
     if settings.progress:
@@ -217,10 +246,12 @@ def run_simulation(
     bc = system.step_constraint
     stopped_reason = "step count reached"
     step = start_step
+    previous = [r for r in previous if not r.get("initial")]
     records: list[dict[str, Any]] = list(previous)
     total_its = sum(int(r.get("newton_iterations", 0)) for r in previous)
     nonconverged = sum(1 for r in previous if not r.get("converged", True))
     unmet_steps = sum(1 for r in previous if not r.get("dirichlet", {}).get("met", True))
+    interrupt: KeyboardInterrupt | None = None
     try:
         for step in range(start_step + 1, settings.steps + 1):
             t_step = time.perf_counter()
@@ -327,7 +358,8 @@ def run_simulation(
             if single:
                 stopped_reason = f"step {step} converged in {res.iterations} Newton iteration(s)"
                 break
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM turned into one by the CLI: re-raised once on disk
+        interrupt = exc
         stopped_reason = f"interrupted during step {step}"
         log.warning("interrupted: everything up to step %d is on disk", step - 1)
         step -= 1
@@ -337,7 +369,7 @@ def run_simulation(
         writer.close()
 
     wall = time.perf_counter() - t_run + sum(float(r.get("wall_time", 0.0)) for r in previous)
-    steps_done = len(records) - len(previous)
+    steps_done = len(records)  # the whole run's, also when it was resumed
     summary = {
         "steps_run": steps_done,
         "last_step": records[-1]["step"] if records else start_step,
@@ -358,6 +390,8 @@ def run_simulation(
         },
         "linear_solver": getattr(linear, "stats", {}),
     }
+    if resumes:
+        summary["resumes"] = resumes
     stats.set_summary(summary)
     if settings.write_png and records:
         try:
@@ -366,12 +400,12 @@ def run_simulation(
             render_frames_png(
                 out / "frames.png",
                 system.parts,
-                [(f"step {start_step}", x0), (f"step {summary['last_step']}", x)],
+                [("step 0", x_initial), (f"step {summary['last_step']}", x)],
                 dim=system.dim,
                 up=settings.render_up,
             )
         except Exception as exc:  # a picture must never lose a finished run
             log.warning("could not render frames.png: %s", exc)
-    if stopped_reason.startswith("interrupted"):
-        raise KeyboardInterrupt
+    if interrupt is not None:
+        raise interrupt
     return RunResult(out, steps_done, x, summary, records, system.parts)

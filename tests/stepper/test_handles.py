@@ -393,7 +393,8 @@ def test_resume_restores_handles_selected_during_the_run(tmp_path):
     whole = simulate(beam_scene([lift, turn], steps=4), tmp_path / "whole", progress=False)
     simulate(beam_scene([lift, turn], steps=2), tmp_path / "split", progress=False)
     resumed = simulate(beam_scene([lift, turn], steps=4), tmp_path / "split", progress=False, resume=True)
-    assert [r["step"] for r in resumed.step_records] == [1, 2, 3, 4] and resumed.steps_run == 2
+    assert [r["step"] for r in resumed.step_records] == [1, 2, 3, 4] and resumed.steps_run == 4
+    assert [r["after_step"] for r in resumed.summary["resumes"]] == [2]
     # same code path and inputs on the same machine: equal to round-off of the linear solves
     np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
 

@@ -180,7 +180,7 @@ def test_stationary_stop_and_resume(tmp_path):
     simulate(s, tmp_path / "res", steps=2, progress=False)
     res2 = simulate(s, tmp_path / "res", steps=4, progress=False, resume=True)
     assert [r["step"] for r in res2.step_records] == [1, 2, 3, 4]  # the earlier steps are kept
-    assert res2.summary["steps_run"] == 2 and res2.summary["newton_iterations"] == sum(
+    assert res2.summary["steps_run"] == 4 and res2.summary["newton_iterations"] == sum(
         r["newton_iterations"] for r in res2.step_records
     )
 

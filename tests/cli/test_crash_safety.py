@@ -1,0 +1,252 @@
+"""Crash safety, proven by killing runs (issue 15): ``idp run`` processes killed with SIGKILL at the most harmful
+points (``IDP_KILL_AT``, :mod:`idp._faults`) and at random moments, stopped with SIGTERM, then resumed with
+``--resume``, must end with the very bytes of an uninterrupted run (frames, PVD, picture) and the same
+statistics (wall times aside), and must never leave a file a reader would take for a frame. Staged (modeling)
+runs the same; animation repair: tests/applications/test_repair.py. A resume with a changed scene is refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from idp.cli import demo_scene_path
+
+pytestmark = pytest.mark.slow
+
+STEPS = 8  # the demo scene (a ball grown into an hourglass cage, in contact from the first steps), 8 steps
+# the processes must do the same arithmetic: the same thread count for all of them (any count will do)
+ENV = {**os.environ, "NUMBA_NUM_THREADS": "2", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+ENV.pop("IDP_KILL_AT", None)
+TIMING_KEYS = {"wall_time", "timings", "linear_solver", "resumes"}
+
+
+def _cmd(scene: Path, out: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "idp", "run", str(scene), "-o", str(out), "--steps", str(STEPS), "-q", *extra]
+
+
+def _run(scene: Path, out: Path, *extra: str, kill_at: str | None = None) -> subprocess.CompletedProcess:
+    env = dict(ENV, IDP_KILL_AT=kill_at) if kill_at else ENV
+    return subprocess.run(_cmd(scene, out, *extra), env=env, capture_output=True, text=True, timeout=300)
+
+
+def _outputs(out: Path) -> dict[str, bytes]:
+    """Every output a reader looks at: the frames (OBJ, VTU), the PVD series and the picture."""
+    files = [*out.glob("obj/*.obj"), *out.glob("vtu/*.vtu"), out / "frames.pvd", out / "frames.png"]
+    return {str(f.relative_to(out)): f.read_bytes() for f in files if f.is_file()}
+
+
+def _without_timings(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _without_timings(v) for k, v in obj.items() if k not in TIMING_KEYS}
+    if isinstance(obj, list):
+        return [_without_timings(v) for v in obj]
+    return obj
+
+
+def _stats(out: Path) -> dict:
+    stats = json.loads((out / "stats.json").read_text())
+    stats["meta"].pop("resolved_scene", None)  # holds output.dir, which differs between the folders
+    return _without_timings(stats)
+
+
+def _leftovers(out: Path) -> list[str]:
+    return [str(p.relative_to(out)) for p in out.rglob("*") if ".tmp" in p.name]
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> tuple[Path, dict[str, bytes], dict]:
+    out = tmp_path_factory.mktemp("crash") / "uninterrupted"
+    r = _run(demo_scene_path(), out)
+    assert r.returncode == 0, r.stderr
+    outputs = _outputs(out)
+    assert sum(name.startswith("vtu/") for name in outputs) == STEPS + 1
+    return out, outputs, _stats(out)
+
+
+def _assert_same_as_reference(out: Path, reference, resumes: int | None = None) -> None:
+    _, ref_outputs, ref_stats = reference
+    outputs = _outputs(out)
+    assert sorted(outputs) == sorted(ref_outputs)
+    differing = [name for name in outputs if outputs[name] != ref_outputs[name]]
+    assert not differing, f"differ from the uninterrupted run: {differing}"
+    assert _stats(out) == ref_stats
+    assert not _leftovers(out)
+    summary = json.loads((out / "stats.json").read_text())["summary"]
+    if resumes is not None:
+        assert len(summary.get("resumes", [])) == resumes
+    assert summary["steps_run"] == STEPS and summary["all_certified"]
+
+
+def _assert_only_whole_frames(out: Path, reference) -> None:
+    """After a kill: each frame file that exists is the uninterrupted run's frame, byte for byte (a torn write
+    only ever leaves a ``.tmp`` file, which no reader takes for a frame); the checkpoint and stats are whole."""
+    _, ref_outputs, _ = reference
+    for name, data in _outputs(out).items():
+        if name.startswith(("obj/", "vtu/")):
+            assert data == ref_outputs[name], f"{name} left by the killed run is not the finished frame"
+    if (out / "checkpoint.npz").exists():
+        with np.load(out / "checkpoint.npz") as ck:
+            assert 0 <= int(ck["step"]) <= STEPS
+    if (out / "stats.json").exists():
+        json.loads((out / "stats.json").read_text())
+
+
+@pytest.mark.parametrize(
+    "kill_at",
+    [
+        "newton:9",  # inside a Newton step (after an accepted iterate)
+        "frame_tmp:5",  # a frame written to its temporary name, not yet renamed
+        "frame_between:3",  # a frame's OBJ in place, its VTU not yet written
+        "pvd:4",  # the PVD index written to its temporary name
+        "checkpoint:4",  # the checkpoint written to its temporary name
+        "stats:6",  # stats.json written to its temporary name
+    ],
+)
+def test_a_run_killed_at_a_harmful_point_resumes_to_the_uninterrupted_bytes(tmp_path, reference, kill_at):
+    out = tmp_path / "killed"
+    killed = _run(demo_scene_path(), out, kill_at=kill_at)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    _assert_only_whole_frames(out, reference)
+    resumed = _run(demo_scene_path(), out, "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    _assert_same_as_reference(out, reference, resumes=1)
+
+
+def test_a_run_killed_at_random_moments_again_and_again_resumes_to_the_same_bytes(tmp_path, reference):
+    out = tmp_path / "random"
+    rng = random.Random(15)
+    kills = 0
+    for attempt in range(4):
+        proc = subprocess.Popen(
+            _cmd(demo_scene_path(), out, *(["--resume"] if attempt else [])),
+            env=ENV,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            proc.wait(timeout=rng.uniform(0.8, 2.5))  # the interpreter starts in ~1 s, a step takes ~0.1 s
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            kills += 1
+            _assert_only_whole_frames(out, reference)
+    final = _run(demo_scene_path(), out, "--resume")
+    assert final.returncode == 0, final.stderr
+    _assert_same_as_reference(out, reference)
+    assert kills >= 1  # otherwise this test proved nothing (it runs on any machine speed: most attempts kill)
+
+
+def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if path.exists():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_sigterm_stops_cleanly_with_exit_130_and_the_run_resumes(tmp_path, reference):
+    out = tmp_path / "term"
+    proc = subprocess.Popen(_cmd(demo_scene_path(), out), env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    if not _wait_for(out / "vtu" / "frame_00002.vtu", proc):
+        proc.kill()
+        pytest.skip("the run ended before it could be stopped")
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    if proc.returncode == 0:
+        pytest.skip("the run finished before SIGTERM arrived")
+    assert proc.returncode == 130, err
+    assert b"terminated (SIGTERM)" in err and b"Traceback" not in err
+    summary = json.loads((out / "stats.json").read_text())["summary"]
+    assert summary["stopped"].startswith("interrupted")
+    _assert_only_whole_frames(out, reference)
+    resumed = _run(demo_scene_path(), out, "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    _assert_same_as_reference(out, reference, resumes=1)
+
+
+def test_a_resume_with_a_changed_scene_is_refused_naming_the_keys_unless_forced(tmp_path):
+    text = demo_scene_path().read_text()
+    original, changed = tmp_path / "scene.toml", tmp_path / "changed.toml"
+    original.write_text(text)
+    assert "youngs_modulus = 1e4" in text and "dhat = 1e-3" in text
+    changed.write_text(
+        text.replace("youngs_modulus = 1e4", "youngs_modulus = 2e4").replace("dhat = 1e-3", "dhat = 2e-3")
+    )
+    out = tmp_path / "out"
+    first = subprocess.run([*_cmd(original, out)[:-3], "--steps", "2", "-q"], env=ENV, capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    before = (out / "checkpoint.npz").read_bytes()
+    refused = _run(changed, out, "--resume")
+    assert refused.returncode == 2
+    assert "objects[0].material.youngs_modulus" in refused.stderr and "contact.dhat" in refused.stderr
+    assert "--force" in refused.stderr and "Traceback" not in refused.stderr
+    assert (out / "checkpoint.npz").read_bytes() == before  # nothing was touched
+    # the step count may change (a resume that runs further); the same scene resumes
+    longer = tmp_path / "longer.toml"
+    longer.write_text(text.replace("steps = 80", "steps = 90"))
+    assert _run(longer, out, "--resume").returncode == 0
+    forced = _run(changed, out, "--resume", "--force")
+    assert forced.returncode == 0, forced.stderr
+
+
+STAGED = {
+    "name": "two",
+    "dim": 3,
+    "gravity": [0.0, -9.8, 0.0],
+    "contact": {"dhat": 1e-3},
+    "objects": [
+        {
+            "name": "dough",
+            "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+            "translate": [0.0, 0.32, 0.0],
+            "material": {"youngs_modulus": 2e3},
+            "plasticity": {"yield_stress": 50.0},
+        },
+        {
+            "name": "floor",
+            "kind": "obstacle",
+            "generate": {"shape": "box_surface", "lo": [-1, -0.1, -1], "hi": [1, 0.0, 1], "resolution": 2},
+        },
+    ],
+    "stages": [
+        {"name": "drop", "steps": 3, "after": {"dough": "bake"}},
+        {"name": "settle", "steps": 3, "set": {"dough": {"material": {"youngs_modulus": 3e3}}}},
+    ],
+}
+
+
+def _staged_outputs(out: Path) -> dict[str, bytes]:
+    files = [p for p in out.rglob("*") if p.is_file() and p.suffix in (".obj", ".vtu", ".pvd", ".png", ".npz")]
+    return {str(f.relative_to(out)): f.read_bytes() for f in files if f.name != "checkpoint.npz"}
+
+
+@pytest.mark.parametrize("kill_at", ["stage:1", "checkpoint:5", "newton:12"])
+def test_a_killed_staged_run_resumes_to_the_uninterrupted_bytes(tmp_path, kill_at):
+    scene = tmp_path / "staged.json"
+    scene.write_text(json.dumps(STAGED))
+
+    def run(out: Path, *extra: str, kill: str | None = None) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "idp", "run", str(scene), "-o", str(out), "-q", *extra]
+        env = dict(ENV, IDP_KILL_AT=kill) if kill else ENV
+        return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+
+    assert run(tmp_path / "whole").returncode == 0
+    killed = run(tmp_path / "killed", kill=kill_at)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    resumed = run(tmp_path / "killed", "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    whole, again = _staged_outputs(tmp_path / "whole"), _staged_outputs(tmp_path / "killed")
+    assert sorted(again) == sorted(whole) and any(name.startswith("final/") for name in whole)
+    assert [name for name in whole if whole[name] != again[name]] == []
+    assert not _leftovers(tmp_path / "killed")
