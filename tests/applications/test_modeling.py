@@ -77,7 +77,7 @@ def _end_gradient(stage_dir: Path, scene: Scene) -> np.ndarray:
     from idp.stepper.run import _load_condition_states, _read_checkpoint
 
     ck = _read_checkpoint(stage_dir / "checkpoint.npz")
-    _load_condition_states(ck, built.system)
+    _load_condition_states(ck, built.system, stage_dir / "checkpoint.npz")
     body = built.system.bodies[0]
     return body.elastic.gradient(ck["x"])[: 3 * body.vertex_ids.size]
 
