@@ -207,13 +207,15 @@ class GrowingBlockPattern:
         extra = state.get("extra")
         if extra is None:
             return
+        if np.asarray(extra).dtype.kind not in "iu":
+            raise ValueError("the checkpoint's contact pattern is not integer keys")
         extra = np.asarray(extra, dtype=np.int64).reshape(-1)
         n = self.base.nfv
         if extra.size and (extra.min() < 0 or extra.max() >= n * n or np.any(np.diff(extra) <= 0)):
             raise ValueError("the checkpoint's contact pattern does not fit this scene")
         self._set_extra(extra)
         counters = state.get("counters")
-        if counters is not None and np.asarray(counters).shape == (2,):
+        if counters is not None and np.asarray(counters).shape == (2,) and np.asarray(counters).dtype.kind in "iu":
             self.folds, self.growths = (int(v) for v in counters)
 
     def _full_data(self, base_data: np.ndarray) -> np.ndarray:

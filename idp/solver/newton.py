@@ -29,6 +29,17 @@ from idp.solver.linear import LinearSolver, NotPositiveDefinite
 from idp.solver.pcg import pcg_from_majorant
 
 
+def _positive_scaling(diagonal: np.ndarray) -> np.ndarray:
+    """|diag H| with zero, tiny or non-finite entries replaced by the median of the usable ones (or 1): the
+    scaling of the gradient-descent fallback must be finite and positive (a zero entry divided by zero)."""
+    d = np.abs(np.asarray(diagonal, dtype=float))
+    finite = np.isfinite(d)
+    largest = float(d[finite].max()) if finite.any() else 0.0
+    usable = finite & (d > 1e-12 * largest) & (d > 0.0)
+    floor = float(np.median(d[usable])) if usable.any() else 1.0
+    return np.where(usable, d, floor)
+
+
 @dataclass
 class NewtonSettings:
     tol: float = 1e-2
@@ -252,7 +263,7 @@ class StepSolver:
                 raise NotPositiveDefinite("non-finite Newton direction")
         except NotPositiveDefinite:
             res.gradient_descent_fallbacks += 1
-            p_free = -g / H.diagonal()
+            p_free = -g / _positive_scaling(H.diagonal())
         res.timings["linear_solve"] += time.perf_counter() - t
         return p_free
 

@@ -366,3 +366,12 @@ def test_cholmod_couplings_that_come_and_go_reuse_the_union_analysis(
         assert rel_residual(A, s.solve(b), b) < 1e-10
     assert s.stats["symbolic_analyses"] == 2
     assert s.stats["subset_reuses"] >= 2
+
+
+def test_the_gradient_descent_scaling_is_finite_and_positive():
+    from idp.solver.newton import _positive_scaling
+
+    d = _positive_scaling(np.array([4.0, 0.0, -2.0, np.nan, 1e-30, np.inf]))
+    assert np.all(np.isfinite(d)) and np.all(d > 0)
+    assert d[0] == 4.0 and d[2] == 2.0 and d[1] == d[3] == d[4] == d[5] == 3.0  # the median of 4 and 2
+    assert np.array_equal(_positive_scaling(np.zeros(3)), np.ones(3))
