@@ -11,6 +11,8 @@ three fixed points and knows nothing else about it:
 - :meth:`StepConstraint.after_iterate` after every accepted iterate, told whether the iterate is near
   convergence: it may hold more DOFs (targets met), drop its penalty, or stiffen it. It returns True when the
   objective changed (the loop then re-evaluates it). Newton may stop only when :attr:`settled` is True.
+- optionally ``tool_moves(x)``: rigid groups of non-optimised vertices (kinematic tools), each with its remaining
+  move; Newton then adds one reduced DOF per tool (the tool at x + s·move) to the step's system.
 """
 
 from __future__ import annotations

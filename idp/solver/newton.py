@@ -267,6 +267,57 @@ class StepSolver:
         res.timings["linear_solve"] += time.perf_counter() - t
         return p_free
 
+    def _direction_with_tools(
+        self, H, g: np.ndarray, g_full: np.ndarray, ev, tools: list, res: NewtonResult
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Newton direction when kinematic tools take part (§4.3 for rigid obstacles driven towards targets).
+
+        Each tool k contributes one reduced DOF s_k: its vertices move along their remaining moves P_k
+        (x_k + s_k·P_k), so the tool stays rigid and its motion and the body's response are one Newton step,
+        instead of the tool creeping by CCD-bounded moves while the body is frozen. The system is H bordered by
+        the tools' columns: [[H, Cᵀ], [C, D]] with C = P_kᵀ·(contact Hessian between tool and free DOFs) and
+        D = P_kᵀ·(contact + penalty Hessian of the tool)·P_k, solved with H's factor (one extra solve per tool)
+        and the m×m Schur complement. Returns (free-DOF direction, per-tool s_k)."""
+        s = self.system
+        m = len(tools)
+        nd = g_full.size
+        rows = np.concatenate([(v[:, None] * s.dim + np.arange(s.dim)[None, :]).ravel() for v, _ in tools])
+        cols = np.concatenate([np.full(v.size * s.dim, k) for k, (v, _) in enumerate(tools)])
+        vals = np.concatenate([P.ravel() for _, P in tools])
+        V = sp.csr_matrix((vals, (rows, cols)), shape=(nd, m))
+        g_s = V.T @ g_full
+        pen_diag = self._constraint.penalty_hessian_diagonal() if self._constraint is not None else np.zeros(nd)
+        D = (V.T @ sp.diags(pen_diag) @ V).toarray()
+        Ct = np.zeros((g.size, m))
+        if ev is not None and ev.num_active > 0:
+            Vc = V[s.collision_dofs]
+            HV = s.contact.hessian(ev) @ Vc
+            D += (Vc.T @ HV).toarray()
+            HV = np.asarray(HV.todense()) if sp.issparse(HV) else np.asarray(HV)
+            to_free = s.collision_dof_to_free
+            kept = to_free >= 0
+            np.add.at(Ct, to_free[kept], HV[kept])
+            if self._held is not None:
+                Ct[self._held] = 0.0
+        t = time.perf_counter()
+        try:
+            self.linear.factorize(H)
+            p0 = -self.linear.solve(g)
+            Y = np.column_stack([self.linear.solve(Ct[:, k]) for k in range(m)]) if np.any(Ct) else np.zeros_like(Ct)
+            schur = D - Ct.T @ Y
+            q = np.linalg.solve(schur, -g_s - Ct.T @ p0)
+            p_free = p0 - Y @ q
+            descent = float(g @ p_free + g_s @ q)
+            if not (np.all(np.isfinite(p_free)) and np.all(np.isfinite(q)) and descent < 0.0):
+                raise NotPositiveDefinite("bordered tool system")
+        except (NotPositiveDefinite, np.linalg.LinAlgError):
+            # the tool block alone (the body's direction as without tools): a descent direction as H and D are PD
+            p_free = self._direction(H, g, res)
+            dd = np.diag(D)
+            q = np.where(dd > 0.0, -g_s / np.where(dd > 0.0, dd, 1.0), 0.0)
+        res.timings["linear_solve"] += time.perf_counter() - t
+        return p_free, q
+
     def _exact_direction(self, M, g: np.ndarray, p_folded: np.ndarray, res: NewtonResult) -> np.ndarray:
         """Exact Newton direction −H⁻¹g when ``M`` (just factorised) is a folded majorant of H.
 
@@ -357,10 +408,15 @@ class StepSolver:
             if not np.all(np.isfinite(g)):
                 raise SolverError(f"non-finite gradient at Newton iteration {it}")
 
-            p_free = self._direction(H, g, res)
-            res.decrement = self._measure(p_free) / sqrt_h
+            tools = c.tool_moves(x) if c is not None and hasattr(c, "tool_moves") else []
+            if tools:
+                p_free, q = self._direction_with_tools(H, g, g_full, ev, tools, res)
+                tool_move = max(abs(float(qk)) * float(np.abs(P).max()) for qk, (_, P) in zip(q, tools, strict=True))
+            else:
+                p_free, tool_move = self._direction(H, g, res), 0.0
+            res.decrement = max(self._measure(p_free), tool_move) / sqrt_h
             converged = res.decrement <= cfg.tol
-            if converged and s.contact_pattern is not None and s.contact_pattern.last_folded:
+            if converged and not tools and s.contact_pattern is not None and s.contact_pattern.last_folded:
                 # the matrix was a folded majorant: judge convergence on the exact Newton direction
                 p_free = self._exact_direction(H, g, p_free, res)
                 res.decrement = self._measure(p_free) / sqrt_h
@@ -369,6 +425,8 @@ class StepSolver:
             p = np.zeros(n * d)
             p[free] = p_free
             P = p.reshape(n, d)
+            for qk, (tool_vertices, tool_move_k) in zip(q if tools else [], tools, strict=True):
+                P[tool_vertices] += qk * tool_move_k
 
             # feasible step: inversion filter, then CCD on the shortened step, then backtracking
             accepted, alpha, alpha_inv, alpha_ccd, trial = self._filtered_step(x, P, x_prev, energy, ev, res)

@@ -23,13 +23,18 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
    then continues to convergence.
 
-Bound vertices that are not optimised DOFs (a kinematic obstacle: a rigid tool) carry no penalty: they move only
-by feasible moves of the whole set, the first at ``begin`` and then, each time Newton is near convergence, the
-largest feasible fraction of their remaining move (the barrier has meanwhile pushed the deformables away), so
-the tool keeps its shape and its motion is CCD-checked as a whole: it never tunnels. (Driving a tool's vertices
-one by one with a penalty, as IPC does, lets a surface with no elasticity squash under contact: measured here,
-a 0.05-thick plate pushed into a slab collapsed to zero thickness.) Such a tool stops as blocked once a move
-advances it less than ``kinematic_progress`` (scene units).
+Bound vertices that are not optimised DOFs (a kinematic obstacle: a rigid tool) move first by the feasible
+fraction at ``begin``; then each tool is one reduced Newton DOF s: its vertices at x + s·P (P = the remaining
+move), pulled by the same penalty (weighted by the mean vertex mass) and pushed back by the barrier, so the tool
+and the body it presses move in the same Newton step (:meth:`DirichletTargets.tool_moves`,
+``StepSolver._direction_with_tools``). The tool keeps its shape, its motion is CCD-checked with everything else
+(it never tunnels), and κ_B doubles, snaps and blocks as for handles. (Driving a tool's vertices one by one with
+a penalty, as IPC does, lets a surface with no elasticity squash under contact: measured here, a 0.05-thick
+plate pushed into a slab collapsed to zero thickness. Moving the tool only by feasible moves between Newton
+solves, as idp did before, stalls as soon as the body cannot get out of the way: a plate pressing a ball onto a
+floor advanced by about the barrier's equilibrium gap, ~1e-6 for d̂ = 1e-3, per Newton solve and was reported
+blocked after one step; ``tools_in_newton=False`` keeps that behaviour, where a tool stops as blocked once a move
+advances it less than ``kinematic_progress``.)
 
 Targets that cannot be met (a handle pushed through an obstacle) never break injectivity: the penalty only
 enters the energy, every move is still CCD- and inversion-filtered. The step then ends with κ_B at its cap and
@@ -61,11 +66,15 @@ class DirichletTargets:
         kinematic_progress: float | None = None,
         stall_iterations: int = 30,
         detect_blocked: bool = True,
+        tools_in_newton: bool = True,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
         optimises (default: those with mass); ``tolerance``: distance (scene units) under which a bound vertex
         counts as on its target; ``min_progress``: a doubling (or a kinematic move) that brings the worst
-        bound vertex less than this fraction closer means the targets are blocked."""
+        bound vertex less than this fraction closer means the targets are blocked; ``tools_in_newton``: kinematic
+        bound vertices (a rigid tool) move as one reduced Newton DOF per tool, pulled by the penalty (with the
+        mean vertex mass as their weight); False: only by feasible moves between Newton solves (see the module
+        docstring)."""
         if not (tolerance > 0 and math.isfinite(tolerance)):
             raise ValueError(f"Dirichlet tolerance must be finite and > 0, got {tolerance!r}")
         self.masses = np.asarray(masses, dtype=float)
@@ -79,9 +88,14 @@ class DirichletTargets:
         self.detect_blocked = bool(detect_blocked)  # False: the paper's rule alone (κ_B doubles up to its cap)
         self.kinematic_progress = float(kinematic_progress) if kinematic_progress else 0.1 * self.tolerance
         self.kappa = self.kappa_initial
+        self.tools_in_newton = bool(tools_in_newton)
+        positive = self.masses[self.masses > 0]
+        self.tool_mass = float(positive.mean()) if positive.size else 1.0
         self.vertices = np.zeros(0, dtype=np.int64)
         self.targets = np.zeros((0, dim))
         self._dof = np.zeros(0, dtype=bool)  # per bound vertex: optimised (penalty), else kinematic (moves)
+        self._penalised = np.zeros(0, dtype=bool)  # per bound vertex: carries the penalty
+        self._weight = np.zeros(0)  # per penalised vertex: its mass in the penalty
         self.groups: list[tuple[str, int]] = []
         self._held = np.zeros(self.masses.size * dim, dtype=bool)
         self._reset()
@@ -116,6 +130,9 @@ class DirichletTargets:
         if not np.all(np.isfinite(t)):
             raise ValueError("Dirichlet targets must be finite")
         self.vertices, self.targets, self._dof = v, t, dof
+        # penalised bound vertices and their weights: handles' own masses; kinematic tools' the mean mass
+        self._penalised = dof | (~dof if self.tools_in_newton else np.zeros_like(dof))
+        self._weight = np.where(dof, self.masses[v], self.tool_mass)[self._penalised]
 
     @property
     def active(self) -> bool:
@@ -148,7 +165,7 @@ class DirichletTargets:
             return x
         x = x + alpha * P
         self._met = False
-        self._penalty_on = bool(self._dof.any())
+        self._penalty_on = bool(self._penalised.any())
         return x
 
     def accept(self, x: np.ndarray) -> None:
@@ -169,23 +186,44 @@ class DirichletTargets:
     def penalty_value(self, x: np.ndarray) -> float:
         if not self._penalty_on:
             return 0.0
-        v = self.vertices[self._dof]
-        r = x[v] - self.targets[self._dof]
-        return 0.5 * self.kappa * float(np.sum(self.masses[v, None] * r * r))
+        v = self.vertices[self._penalised]
+        r = x[v] - self.targets[self._penalised]
+        return 0.5 * self.kappa * float(np.sum(self._weight[:, None] * r * r))
 
     def penalty_gradient(self, x: np.ndarray) -> np.ndarray:
+        """Flat gradient; entries of kinematic tool vertices too (Newton reduces them to the tools' DOFs)."""
         g = np.zeros(x.size)
         if self._penalty_on:
-            v = self.vertices[self._dof]
-            g.reshape(-1, self.dim)[v] = self.kappa * self.masses[v, None] * (x[v] - self.targets[self._dof])
+            v = self.vertices[self._penalised]
+            g.reshape(-1, self.dim)[v] = self.kappa * self._weight[:, None] * (x[v] - self.targets[self._penalised])
         return g
 
     def penalty_hessian_diagonal(self) -> np.ndarray:
         diag = np.zeros(self.masses.size * self.dim)
         if self._penalty_on:
-            v = self.vertices[self._dof]
-            diag.reshape(-1, self.dim)[v] = self.kappa * self.masses[v, None]
+            v = self.vertices[self._penalised]
+            diag.reshape(-1, self.dim)[v] = self.kappa * self._weight[:, None]
         return diag
+
+    def tool_moves(self, x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per kinematic tool still pulled by the penalty: (its bound vertices, their remaining moves (k, d)).
+        Newton gives each one reduced DOF s (the tool at x + s·move: rigid, CCD-checked with the rest)."""
+        kin = ~self._dof
+        if not (self.tools_in_newton and self._penalty_on and kin.any()):
+            return []
+        groups = self.groups if sum(c for _, c in self.groups) == self.vertices.size else [("", self.vertices.size)]
+        out, a = [], 0
+        for _, count in groups:
+            sel = np.zeros(self.vertices.size, dtype=bool)
+            sel[a : a + count] = True
+            a += count
+            sel &= kin
+            if sel.any():
+                v = self.vertices[sel]
+                move = self.targets[sel] - x[v]
+                if np.any(move):
+                    out.append((v, move))
+        return out
 
     def after_iterate(
         self,
@@ -212,7 +250,7 @@ class DirichletTargets:
             # Other iterates are Newton converging towards the penalised minimum (a stiff energy such as a high
             # p-norm takes many, and its overshooting steps may be cut by CCD far from any contact): they neither
             # count as stalled nor reset the count.
-            pen = float(dist[self._dof].max())
+            pen = float(dist[self._penalised].max())
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
             elif contact_limited and in_contact and self.detect_blocked:
@@ -227,7 +265,7 @@ class DirichletTargets:
             return x, False
         changed = False
         kin = ~self._dof
-        if kin.any() and float(dist[kin].max()) > self.tolerance:
+        if not self.tools_in_newton and kin.any() and float(dist[kin].max()) > self.tolerance:
             P = self._move(x, kin)
             alpha = feasible_step(x, P)
             advance = alpha * float(np.linalg.norm(P, axis=1).max())
@@ -236,7 +274,7 @@ class DirichletTargets:
                 self.kinematic_moves += 1
                 changed = True
         if self._penalty_on:
-            pen = float(dist[self._dof].max())
+            pen = float(dist[self._penalised].max())
             gain = None if self._last_residual is None else 1.0 - pen / self._last_residual
             if (
                 in_contact

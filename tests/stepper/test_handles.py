@@ -263,6 +263,48 @@ def test_fast_kinematic_obstacle_does_not_tunnel(tmp_path):
     assert plate[:, 1].max() - plate[:, 1].min() == pytest.approx(0.05, rel=1e-9)  # moved rigidly
 
 
+def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
+    # a rigid plate moving down 0.02 per step onto a ball resting on a floor: the ball cannot move away, so the
+    # plate advances only as the ball is compressed. With the plate as one Newton DOF the targets are met every
+    # step; as a tool moved between Newton solves it stalled (blocked after one step, gaps ~1e-6 for d̂ = 1e-3).
+    ball = {
+        "name": "ball",
+        "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+        "translate": [0, 0.302, 0],
+        "material": {"youngs_modulus": 1e4, "poisson_ratio": 0.3},
+    }
+    floor = {
+        "name": "floor",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-1, -0.1, -1], "hi": [1, 0.0, 1], "resolution": 1},
+    }
+    plate = {
+        "name": "plate",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-0.5, 0.62, -0.5], "hi": [0.5, 0.7, 0.5], "resolution": 1},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, -0.5, 0.0]}},
+    }
+    steps = 5
+    d = {
+        "time": {"h": H, "steps": steps},
+        "solver": {"check_every_iterate": True},
+        "contact": {"dhat": 1e-3},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [ball, floor, plate],
+    }
+    res = simulate(scene_from_dict(d), tmp_path, progress=False)
+    recs = certified(res)
+    assert all(r["dirichlet"]["met"] and not r["dirichlet"]["blocked"] for r in recs)
+    assert min(r["min_distance"] for r in recs) > 1e-5  # no gap crushed towards 0 (d̂ = 1e-3)
+    by_name = {p.name: p for p in res.parts}
+    plate_y = res.x[by_name["plate"].vertex_ids][:, 1]
+    ball_y = res.x[by_name["ball"].vertex_ids][:, 1]
+    assert plate_y.min() == pytest.approx(0.62 - 0.02 * steps, abs=1e-9)  # the press went all the way, rigidly
+    assert plate_y.max() - plate_y.min() == pytest.approx(0.08, abs=1e-9)
+    assert ball_y.min() > 0.0 and ball_y.max() < plate_y.min()  # squeezed between them, touching neither
+    assert plate_y.min() - ball_y.max() < 1e-3 and ball_y.min() < 1e-3  # in contact with both (within d̂)
+
+
 def test_motions():
     X = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     np.testing.assert_allclose(Translate(np.array([0.0, 0.0, 1.0])).targets(X, 0.5), X + np.array([0.0, 0.0, 0.5]))
