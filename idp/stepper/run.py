@@ -145,6 +145,16 @@ def _condition_reports(system, x: np.ndarray) -> dict:
     return out
 
 
+def _nonconvergence_reason(res, newton: NewtonSettings) -> str:
+    """Why a step stopped without converging, naming the limit that stopped it."""
+    its = f"{res.iterations} Newton iteration{'s' if res.iterations != 1 else ''}"
+    if res.hit_wall_limit:
+        return f"hit the wall-clock limit solver.max_step_seconds = {newton.max_seconds:g} s after {its}"
+    if res.hit_iteration_cap:
+        return f"hit the iteration cap solver.max_newton_iterations = {newton.max_iterations}"
+    return f"line search could not decrease the energy after {its}"
+
+
 def run_simulation(
     system,
     newton: NewtonSettings,
@@ -250,6 +260,7 @@ def run_simulation(
                 "converged": res.converged,
                 "exact_minimiser": res.exact,
                 "hit_iteration_cap": res.hit_iteration_cap,
+                "hit_wall_limit": res.hit_wall_limit,
                 "line_search_failed": res.line_search_failed,
                 "newton_decrement": res.decrement,
                 "alphas": res.alphas,
@@ -286,8 +297,8 @@ def run_simulation(
                 raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
             if not res.converged:
                 nonconverged += 1
-                why = "hit the iteration cap" if res.hit_iteration_cap else "line search could not decrease the energy"
-                msg = f"step {step} did not converge ({why}; decrement {res.decrement:.3e} > tol {newton.tol:g})"
+                msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
+                msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
                 if settings.on_nonconvergence == "error":
                     raise SolverError(msg)
                 log.warning(msg)
@@ -358,6 +369,9 @@ def run_simulation(
         },
         "linear_solver": getattr(linear, "stats", {}),
     }
+    guard = getattr(linear, "memory_guard", None)
+    if guard is not None and guard.peak is not None:  # the largest step-memory estimate of the run
+        summary["memory_estimate"] = guard.peak.to_dict()
     stats.set_summary(summary)
     if settings.write_png and records:
         try:
