@@ -299,7 +299,9 @@ def run_simulation(
                 nonconverged += 1
                 msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
                 msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
-                if settings.on_nonconvergence == "error":
+                if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
+                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
+                    _save_checkpoint(checkpoint, x, step, system)
                     raise SolverError(msg)
                 log.warning(msg)
             if bc_report is not None and not bc_report["met"]:
