@@ -203,7 +203,8 @@ class LinearSolver(ABC):
 
     name: str = "abstract"
     # bytes per stored entry of the (full, both-triangle) Hessian pattern for the matrix itself (CSR, 8 + 4) and the
-    # copies and index maps the assembly and the backend keep of it; measured, see memory_estimate
+    # copies and index maps the assembly and the backend keep of it (checked with the other parts against measured runs,
+    # see idp.solver.memory)
     hessian_bytes_per_entry: int = 48
 
     def __init__(self, dofs_per_node: int = 3) -> None:
