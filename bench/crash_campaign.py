@@ -25,7 +25,7 @@ from typing import Any
 from idp._faults import POINTS
 from idp.cli import demo_scene_path
 
-TIMING = {"wall_time", "timings", "linear_solver", "resumes"}
+TIMING = {"wall_time", "timings", "linear_solver", "resumes", "memory_estimate"}
 
 
 def _strip(obj: Any) -> Any:

@@ -51,12 +51,59 @@ def demo_scene_path() -> Path:
     return Path(__file__).parent / "scenes" / "demo_hourglass.toml"
 
 
+def _memory_size(text: str) -> int:
+    """``--max-memory 4G``: bytes, with K/M/G/T suffixes (powers of 1024)."""
+    from idp.solver.memory import parse_memory_size
+
+    try:
+        return parse_memory_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number of seconds: {text!r}") from None
+    if not (v > 0 and v != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _with_solver_limits(scene, args):
+    """The scene with ``--max-memory``, ``--max-step-seconds`` and ``--max-newton-iterations`` put into its
+    ``[solver]`` section (a staged scene hands them to every stage)."""
+    update = {
+        key: value
+        for key, value in (
+            ("max_memory", args.max_memory),
+            ("max_step_seconds", args.max_step_seconds),
+            ("max_newton_iterations", args.max_newton_iterations),
+        )
+        if value is not None
+    }
+    if update:
+        scene.solver = scene.solver.model_copy(update=update)
+    return scene
+
+
 def _cmd_run(args) -> int:
     _set_threads(args.threads)
     from idp.api import simulate
     from idp.scene.load import load_scene
 
-    scene = load_scene(args.scene)
+    scene = _with_solver_limits(load_scene(args.scene), args)
     out = args.output or scene.output.dir
     result = simulate(
         scene,
@@ -284,6 +331,26 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     r.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     r.add_argument("--check-iterates", action="store_true", help="certify every Newton iterate, not only every frame")
+    r.add_argument(
+        "--max-memory",
+        type=_memory_size,
+        metavar="SIZE",
+        help="memory a step may use, e.g. 4G (K/M/G/T: powers of 1024; overrides solver.max_memory); a step "
+        "estimated to need more stops before factorising",
+    )
+    r.add_argument(
+        "--max-step-seconds",
+        type=_positive_seconds,
+        metavar="S",
+        help="wall-clock limit per step (overrides solver.max_step_seconds); the step ends after the iterate "
+        "that passes it, reported as not converged",
+    )
+    r.add_argument(
+        "--max-newton-iterations",
+        type=_positive_int,
+        metavar="N",
+        help="Newton iteration cap per step (overrides solver.max_newton_iterations)",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
 

@@ -27,6 +27,12 @@ class SolverError(IdpError):
     """The nonlinear or linear solver could not continue (e.g. non-finite values)."""
 
 
+class ResourceError(SolverError):
+    """A run would need more memory than it may use (a step's estimated peak over the memory available or the
+    ``solver.max_memory`` limit): raised before the factorisation that would allocate it. The CLI exits with the
+    solver's code (4), as for a run that runs out of memory on its own."""
+
+
 class FontError(IdpError):
     """A font file or a text to set in it is unusable (unreadable font, missing glyphs, empty text)."""
 

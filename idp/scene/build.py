@@ -456,6 +456,8 @@ def build_scene(
         max_iterations=s.max_newton_iterations,
         inversion_eta=s.inversion_eta,
         check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,
+        max_seconds=s.max_step_seconds,
+        max_memory=s.max_memory_bytes,
     )
     o, t = scene.output, scene.time
     if repair is not None:

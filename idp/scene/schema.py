@@ -95,6 +95,31 @@ class SolverConfig(_Model):
     linear_solver: Literal["auto", "cholmod", "scipy"] = "auto"
     check_every_iterate: Bool = False
     inversion_eta: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.1
+    # guards (docs/scene-reference.md, "Running on shared machines"): a step's wall-clock limit in seconds, and the
+    # memory a step may use ("4G", "512M" with powers of 1024, or a number of bytes) on top of the memory available
+    max_step_seconds: PosFloat | None = None
+    max_memory: int | str | None = None
+
+    @field_validator("max_memory", mode="before")
+    @classmethod
+    def _max_memory(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        from idp.solver.memory import parse_memory_size
+
+        parse_memory_size(v)  # ValueError naming the accepted forms
+        if isinstance(v, str):
+            return v.strip()
+        if isinstance(v, float):
+            return int(v)
+        return v
+
+    @property
+    def max_memory_bytes(self) -> int | None:
+        """``max_memory`` in bytes (None when unset)."""
+        from idp.solver.memory import parse_memory_size
+
+        return None if self.max_memory is None else parse_memory_size(self.max_memory)
 
 
 class ContactConfig(_Model):

@@ -14,3 +14,15 @@ def grid_edges(nx: int) -> np.ndarray:
         b = idx[d[0] :, d[1] :, d[2] :]
         out.append(np.stack([a.ravel(), b.ravel()], 1))
     return np.concatenate(out)
+
+
+def grid_block_pattern(nx: int, d: int = 3):
+    """Symmetric pattern (all ones, both triangles, diagonal included) of ``d`` DOFs per vertex of the
+    :func:`grid_edges` grid: the block structure of a 3D tet-mesh Hessian, as CSR."""
+    import scipy.sparse as sp
+
+    e = grid_edges(nx)
+    nv = nx**3
+    V = sp.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nv, nv))
+    V = V + V.T + sp.eye(nv)
+    return sp.kron(V, np.ones((d, d)), format="csr")

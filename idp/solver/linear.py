@@ -33,13 +33,17 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from idp.errors import SolverError
+
+if TYPE_CHECKING:
+    from idp.solver.memory import MemoryEstimate, MemoryGuard
+    from idp.solver.symbolic import SymbolicCounts
 
 __all__ = [
     "LinearSolver",
@@ -191,9 +195,17 @@ class LinearSolver(ABC):
     call's. ``stats`` accumulates seconds (``ordering``, ``symbolic``, ``numeric``,
     ``solve``) and counts (``factorizations``, ``symbolic_reuses``,
     ``symbolic_analyses``).
+
+    ``memory_guard`` (an :class:`idp.solver.memory.MemoryGuard`, set by the Newton solver): called by the backend
+    with every new pattern and the ordering it will factorise it in, before its symbolic and numeric
+    factorisations; it raises :class:`idp.errors.ResourceError` when the step would not fit in memory.
     """
 
     name: str = "abstract"
+    # bytes per stored entry of the (full, both-triangle) Hessian pattern for the matrix itself (CSR, 8 + 4) and the
+    # copies and index maps the assembly and the backend keep of it (checked with the other parts against measured runs,
+    # see idp.solver.memory)
+    hessian_bytes_per_entry: int = 48
 
     def __init__(self, dofs_per_node: int = 3) -> None:
         if int(dofs_per_node) < 1:
@@ -201,6 +213,37 @@ class LinearSolver(ABC):
         self.dofs_per_node = int(dofs_per_node)
         self.stats: dict[str, float] = _new_stats()
         self.n: int = 0
+        self.memory_guard: MemoryGuard | None = None
+
+    def _check_memory(
+        self, indptr: np.ndarray | None, indices: np.ndarray | None, n: int, perm: np.ndarray | None
+    ) -> None:
+        """Hand a new pattern (CSR/CSC arrays holding both triangles) and the ordering it will be factorised in to
+        the memory guard, if there is one (``perm`` None: the backend orders inside its factorisation)."""
+        if self.memory_guard is not None:
+            self.memory_guard.check(self, indptr, indices, n, perm)
+
+    def factor_bytes(self, counts: SymbolicCounts) -> tuple[int, int]:
+        """(bytes of the stored factor, transient workspace bytes of one factorisation) for this backend.
+
+        Default: a simplicial Cholesky, 12 B per nonzero of L (value + row index) and a copy of A."""
+        return 12 * counts.nnz_factor + 16 * counts.n, 12 * counts.nnz_matrix
+
+    def memory_estimate(self, counts: SymbolicCounts, other_bytes: int = 0) -> MemoryEstimate:
+        """The step's estimated peak memory for a pattern with these symbolic counts (see :mod:`idp.solver.memory`)."""
+        from idp.solver.memory import SAFETY_MARGIN, MemoryEstimate
+
+        factor, workspace = self.factor_bytes(counts)
+        hessian = self.hessian_bytes_per_entry * counts.nnz_matrix + 16 * counts.n
+        return MemoryEstimate(
+            backend=self.name,
+            counts=counts,
+            factor_bytes=int(factor),
+            workspace_bytes=int(workspace),
+            hessian_bytes=int(hessian),
+            other_bytes=int(other_bytes),
+            margin_bytes=int(SAFETY_MARGIN * (factor + workspace + hessian + other_bytes)),
+        )
 
     @abstractmethod
     def factorize(self, A: sp.spmatrix) -> None:
@@ -240,6 +283,12 @@ class ScipySolver(LinearSolver):
     matrix) and factorised with ``permc_spec="NATURAL"``; without it SuperLU orders
     with ``MMD_AT_PLUS_A`` on every factorisation. SuperLU's own symbolic step is part
     of every numeric factorisation and is timed as ``numeric``.
+
+    Memory (:meth:`factor_bytes`): SuperLU keeps L supernodal (dense supernode blocks, 8 B per entry) and U by
+    columns (value + int32 row index, 12 B per entry); without pivoting U has the pattern of Lᵀ. Measured RSS
+    growth of ``splu`` on the 3D grid matrices of bench/bench_linear.py with the ND ordering: 83 MB at 12K DOF,
+    328 MB at 32K DOF; the model says 86 and 339 MB. Without pymetis SuperLU orders inside ``splu`` and the
+    memory guard has no ordering to count with (it skips the check).
     """
 
     name = "scipy"
@@ -260,12 +309,14 @@ class ScipySolver(LinearSolver):
         if self.use_metis:
             p = nested_dissection_ordering(indptr, indices, n, self.dofs_per_node)
             t1 = time.perf_counter()
+            self._check_memory(indptr, indices, n, p)
             # Permute a matrix whose values are entry numbers: its data is the map.
             M = sp.csr_matrix((np.arange(indices.shape[0], dtype=np.int64), indices, indptr), shape=(n, n))
             Mp = M[p][:, p]
             Mp.sort_indices()
             self._perm, self._pindptr, self._pindices, self._pmap = p, Mp.indptr, Mp.indices, Mp.data
         else:
+            self._check_memory(None, None, n, None)
             t1 = t0
             self._perm = self._pindptr = self._pindices = self._pmap = None
         t2 = time.perf_counter()
@@ -273,6 +324,10 @@ class ScipySolver(LinearSolver):
         self.stats["symbolic"] += t2 - t1
         self._pattern.store(indptr, indices)
         self.stats["symbolic_analyses"] += 1
+
+    def factor_bytes(self, counts: SymbolicCounts) -> tuple[int, int]:
+        """L: 8 B per supernodal entry; U: 12 B per entry of Lᵀ; workspace: the permuted copy of A and O(n) ints."""
+        return 8 * counts.supernodal_values + 12 * counts.nnz_factor, 8 * counts.nnz_matrix + 64 * counts.n
 
     def factorize(self, A: sp.spmatrix) -> None:
         indptr, indices, data, n = compressed_arrays(A)

@@ -10,6 +10,13 @@ per unit of frame time √h, the units of the reference implementation's PNTol. 
 (``norm = "max"``, the reference's volumetric rule) or the root mean square of the free vertices'
 displacement lengths (``norm = "rms"``, the reference's shell and flow rule). The last (filtered,
 energy-decreasing) step along that direction is still taken. Hitting the iteration cap is reported.
+
+Guards: ``max_iterations`` caps the iterations of a step and ``max_seconds`` its wall-clock time; the clock is read
+after each accepted iterate (so the step always ends on an intersection-free, inversion-free state, however small
+the limit), and a step stopped by either is reported as not converged (``hit_iteration_cap`` / ``hit_wall_limit``).
+The run loop then warns or stops as ``on_nonconvergence`` says. ``max_memory`` / ``memory_check`` install a
+:class:`~idp.solver.memory.MemoryGuard` on the linear solver: the step's memory is estimated from the symbolic
+analysis before the first factorisation, and a step that would not fit stops with :class:`~idp.errors.ResourceError`.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
+from idp.solver.memory import MemoryGuard, step_overhead_bytes
 from idp.solver.pcg import pcg_from_majorant
 
 
@@ -52,6 +60,9 @@ class NewtonSettings:
     # and cap. 1e-2 against 1e-6 at bunny_1922: 1,236 instead of 4,691 CG iterations, same fill.
     pcg_rtol: float = 1e-2
     pcg_max_iterations: int = 100
+    max_seconds: float | None = None  # wall-clock limit of one step (checked after each accepted iterate)
+    max_memory: int | None = None  # bytes a step may use (on top of the memory available; None: that alone)
+    memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
 
 
 @dataclass
@@ -61,6 +72,7 @@ class NewtonResult:
     iterations: int = 0
     converged: bool = False
     hit_iteration_cap: bool = False
+    hit_wall_limit: bool = False  # stopped after an accepted iterate because max_seconds had passed
     line_search_failed: bool = False
     decrement: float = float("inf")
     alphas: list = field(default_factory=list)  # accepted step sizes
@@ -108,6 +120,22 @@ class StepSolver:
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
                 wt.term.inversion_eta = settings.inversion_eta
+        if (settings.memory_check or settings.max_memory is not None) and linear_solver.memory_guard is None:
+            linear_solver.memory_guard = self._memory_guard()
+
+    def _memory_guard(self) -> MemoryGuard:
+        """The guard checking every new pattern's estimated step memory against the memory available and
+        ``max_memory`` (vectors of every DOF and the collision surface's contact sets counted on top)."""
+        contact, x = getattr(self.system, "contact", None), getattr(self.system, "x", None)
+        primitives = 0
+        if contact is not None:
+            mesh = contact.mesh
+            primitives = int(mesh.num_vertices) + int(mesh.edges.shape[0]) + int(mesh.faces.shape[0])
+        return MemoryGuard(
+            self.settings.max_memory,
+            check_system=self.settings.memory_check,
+            other_bytes=step_overhead_bytes(0 if x is None else x.size, primitives),
+        )
 
     # -- energy pieces ----------------------------------------------------------------
     def _contact_eval(self, x, res: NewtonResult, candidates=None):
@@ -366,6 +394,7 @@ class StepSolver:
         bound vertices, its penalty joins S while it is on, its held DOFs do not move, and the loop stops only
         once it is settled (see :mod:`idp.solver.constraint`)."""
         s, cfg = self.system, self.settings
+        t_start = time.perf_counter()
         res = NewtonResult()
         x = (x_prev if start is None else start).copy()
         n, d = x.shape
@@ -465,6 +494,9 @@ class StepSolver:
                     energy, el, bar = self._energy(x, x_prev, ev)
             if converged and not changed and (c is None or c.settled):
                 res.converged = True
+                break
+            if cfg.max_seconds is not None and time.perf_counter() - t_start > cfg.max_seconds:
+                res.hit_wall_limit = True  # x is an accepted (feasible, certified-to-be) iterate
                 break
         else:
             res.hit_iteration_cap = True

@@ -163,6 +163,16 @@ def _condition_reports(system, x: np.ndarray) -> dict:
     return out
 
 
+def _nonconvergence_reason(res, newton: NewtonSettings) -> str:
+    """Why a step stopped without converging, naming the limit that stopped it."""
+    its = f"{res.iterations} Newton iteration{'s' if res.iterations != 1 else ''}"
+    if res.hit_wall_limit:
+        return f"hit the wall-clock limit solver.max_step_seconds = {newton.max_seconds:g} s after {its}"
+    if res.hit_iteration_cap:
+        return f"hit the iteration cap solver.max_newton_iterations = {newton.max_iterations}"
+    return f"line search could not decrease the energy after {its}"
+
+
 def run_simulation(
     system,
     newton: NewtonSettings,
@@ -281,6 +291,7 @@ def run_simulation(
                 "converged": res.converged,
                 "exact_minimiser": res.exact,
                 "hit_iteration_cap": res.hit_iteration_cap,
+                "hit_wall_limit": res.hit_wall_limit,
                 "line_search_failed": res.line_search_failed,
                 "newton_decrement": res.decrement,
                 "alphas": res.alphas,
@@ -317,9 +328,11 @@ def run_simulation(
                 raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
             if not res.converged:
                 nonconverged += 1
-                why = "hit the iteration cap" if res.hit_iteration_cap else "line search could not decrease the energy"
-                msg = f"step {step} did not converge ({why}; decrement {res.decrement:.3e} > tol {newton.tol:g})"
-                if settings.on_nonconvergence == "error":
+                msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
+                msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
+                if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
+                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
+                    _save_checkpoint(checkpoint, x, step, system)
                     raise SolverError(msg)
                 log.warning(msg)
             if bc_report is not None and not bc_report["met"]:
@@ -392,6 +405,9 @@ def run_simulation(
     }
     if resumes:
         summary["resumes"] = resumes
+    guard = getattr(linear, "memory_guard", None)
+    if guard is not None and guard.peak is not None:  # the largest step-memory estimate of this process
+        summary["memory_estimate"] = guard.peak.to_dict()
     stats.set_summary(summary)
     if settings.write_png and records:
         try:

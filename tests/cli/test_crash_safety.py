@@ -27,7 +27,7 @@ STEPS = 8  # the demo scene (a ball grown into an hourglass cage, in contact fro
 # the processes must do the same arithmetic: the same thread count for all of them (any count will do)
 ENV = {**os.environ, "NUMBA_NUM_THREADS": "2", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 ENV.pop("IDP_KILL_AT", None)
-TIMING_KEYS = {"wall_time", "timings", "linear_solver", "resumes"}
+TIMING_KEYS = {"wall_time", "timings", "linear_solver", "resumes", "memory_estimate"}
 
 
 def _cmd(scene: Path, out: Path, *extra: str) -> list[str]:
