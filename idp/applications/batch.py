@@ -25,6 +25,7 @@ Dask is imported only here, and only when a batch runs on it (``serial=True`` ne
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import hashlib
@@ -41,7 +42,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -608,6 +609,21 @@ def _run_serial(todo: list[_Plan], threads: int, retries: int, stop_file: Path, 
         bar.finished(records[p.name].get("status") == "ok")
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): processes started here keep
+    ignoring it, so a terminal's Ctrl-C reaches the batch alone, not every worker with a traceback of its own."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def _run_dask(
     todo: list[_Plan],
     threads: int,
@@ -639,13 +655,14 @@ def _run_dask(
             except OSError as exc:
                 raise IdpError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         else:
-            cluster = LocalCluster(
-                n_workers=n_workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=dashboard,
-                silence_logs=logging.CRITICAL if quiet else logging.INFO,
-            )
+            with _sigint_ignored():  # inherited by the workers: a Ctrl-C is the batch's to handle (it closes them)
+                cluster = LocalCluster(
+                    n_workers=n_workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=dashboard,
+                    silence_logs=logging.CRITICAL if quiet else logging.INFO,
+                )
             client = Client(cluster)
         if on_start is not None:
             on_start(client)
