@@ -233,8 +233,9 @@ def _job_env(threads: int) -> dict[str, str]:
     env = dict(os.environ)
     for var in _THREAD_VARS:
         env[var] = str(threads)
-    pkg_root = str(Path(__file__).resolve().parents[2])  # the idp this worker runs is the one the job runs
-    env["PYTHONPATH"] = os.pathsep.join([pkg_root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+    root = Path(__file__).resolve().parents[2]
+    if root.name not in ("site-packages", "dist-packages"):  # a source checkout: the job runs this worker's idp
+        env["PYTHONPATH"] = os.pathsep.join([str(root), *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
     env[_PARENT_VAR] = str(os.getpid())
     return env
 
@@ -468,6 +469,10 @@ def run_batch(
             )
     except KeyboardInterrupt:
         interrupted = True
+    except BaseException as exc:  # e.g. the scheduler cannot be reached: said in batch.json too
+        info.update(status="error", error=f"{type(exc).__name__}: {exc}", finished=_now())
+        _write_json(out / "batch.json", info)
+        raise
     finally:
         bar.close()
         if not (interrupted and scheduler):  # a remote worker's job may not have seen it yet: left in place
@@ -651,7 +656,7 @@ def _run_dask(
     try:
         if scheduler:
             try:
-                client = Client(scheduler, timeout="30s")
+                client = Client(scheduler, timeout="10s")
             except OSError as exc:
                 raise IdpError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         else:

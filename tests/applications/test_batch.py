@@ -369,8 +369,9 @@ def test_a_batch_on_a_running_scheduler_given_by_address(inputs, tmp_path):
 
 def test_cli_exit_codes_summary_and_missing_dask(inputs, tmp_path, capsys, monkeypatch):
     good = write_spec(inputs, '[[jobs]]\nscene = "tiny.toml"\nset = { "time.steps" = 1 }\n', "good.toml")
-    assert main(["batch", str(good), "-o", str(tmp_path / "g"), "--serial", "-q"]) == 0
-    printed = capsys.readouterr().out
+    assert main(["batch", str(good), "-o", str(tmp_path / "g"), "--serial"]) == 0
+    printed, bar = capsys.readouterr()
+    assert "done=1" in bar and "failed=0" in bar and "1/1" in bar  # the progress bar's last state
     assert "1: 1 ok, 0 failed" in printed and "serial" in printed and str(tmp_path / "g" / "results.md") in printed
     bad = write_spec(
         inputs,
