@@ -419,7 +419,6 @@ def run_batch(
         _require_dask()
     spec_path = Path(spec)
     batch, jobs = load_batch(spec_path)
-    out = make_output_dir(check_output_dir(out))
     cores = os.cpu_count() or 1
     n_workers = workers if workers is not None else cores
     if n_workers < 1:
@@ -427,6 +426,7 @@ def run_batch(
     n_retries = retries if retries is not None else batch.retries
     if n_retries < 0:
         raise SceneError(f"retries: must be >= 0 (got {n_retries})")
+    out = make_output_dir(check_output_dir(out))
     threads = threads_per_job or batch.threads_per_job
     if threads is None:
         threads = cores if serial else (1 if scheduler else max(1, cores // n_workers))

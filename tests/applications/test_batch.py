@@ -9,6 +9,7 @@ again on another worker, resuming from its checkpoint, and the batch completes; 
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import os
 import re
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from idp.applications.batch import run_batch
 from idp.cli import main
 from idp.errors import SceneError
 from idp.mesh.generate import ellipsoid_surface, tet_ball
@@ -29,9 +31,8 @@ from idp.output.stats import load_stats
 from idp.scene.batch_schema import load_batch
 from idp.scene.load import load_scene
 
-pytest.importorskip("distributed")
-
-from idp.applications.batch import run_batch
+#: the cluster tests need Dask (idp[batch]); the spec's and the serial CLI's do not
+needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="needs idp[batch] (Dask)")
 
 TINY = """
 name = "tiny"
@@ -200,6 +201,7 @@ def _rows(out: Path) -> dict[str, dict[str, str]]:
         return {r["job"]: r for r in csv.DictReader(fh)}
 
 
+@needs_dask
 def test_a_sweep_with_a_failing_job_and_a_repair_on_two_workers_then_resumed(inputs, tmp_path):
     spec = write_spec(
         inputs,
@@ -303,6 +305,7 @@ def _wait(cond, timeout: float, what: str, proc: subprocess.Popen | None = None)
         time.sleep(0.02)
 
 
+@needs_dask
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_a_worker_killed_mid_job_has_its_job_rerun_elsewhere(inputs, tmp_path):
     spec = write_spec(
@@ -349,6 +352,7 @@ def test_a_worker_killed_mid_job_has_its_job_rerun_elsewhere(inputs, tmp_path):
     assert _rows(out)["slow"]["attempts"] == "2"
 
 
+@needs_dask
 def test_a_batch_on_a_running_scheduler_given_by_address(inputs, tmp_path):
     from distributed import LocalCluster
 
