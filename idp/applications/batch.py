@@ -233,6 +233,10 @@ def _job_env(threads: int) -> dict[str, str]:
     env = dict(os.environ)
     for var in _THREAD_VARS:
         env[var] = str(threads)
+    # Dask's nanny sets MALLOC_TRIM_THRESHOLD_=65536 for its workers (distributed.nanny.pre-spawn-environ), so
+    # that they hand freed memory back: inherited by a job, glibc's malloc trims after every large free, which
+    # made the bunny sweep's jobs a third slower (docs/batch.md). A job allocates like `idp run` does alone.
+    env.pop("MALLOC_TRIM_THRESHOLD_", None)
     root = Path(__file__).resolve().parents[2]
     if root.name not in ("site-packages", "dist-packages"):  # a source checkout: the job runs this worker's idp
         env["PYTHONPATH"] = os.pathsep.join([str(root), *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
