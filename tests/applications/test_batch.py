@@ -192,6 +192,17 @@ scene = "../repair.toml"
     assert jobs[7].scene.repair is not None and jobs[7].scene.time.steps == 2
 
 
+def test_a_job_gets_its_thread_counts_and_not_the_dask_workers_malloc_setting(monkeypatch):
+    from idp.applications.batch import _job_env
+
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")  # what Dask's nanny gives its workers
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    env = _job_env(2)
+    assert "MALLOC_TRIM_THRESHOLD_" not in env  # it made every job a third slower
+    assert all(env[v] == "2" for v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
+    assert env["IDP_BATCH_PARENT"] == str(os.getpid())
+
+
 # ---------------------------------------------------------------------------------------------
 # A local cluster of 2 workers
 
