@@ -38,4 +38,8 @@ def __getattr__(name):  # lazy: keep `import idp` cheap
         from idp.applications.modeling import run_stages
 
         return run_stages
+    if name == "run_batch":  # many scenes or a sweep as jobs on Dask (idp.applications.batch; needs idp[batch])
+        from idp.applications.batch import run_batch
+
+        return run_batch
     raise AttributeError(name)

@@ -1,5 +1,5 @@
 """Command line: ``idp run``, ``idp flow``, ``idp font``, ``idp repair``, ``idp uv``, ``idp check``, ``idp demo``,
-``idp bench``."""
+``idp bench``, ``idp batch``."""
 
 from __future__ import annotations
 
@@ -311,6 +311,57 @@ def _cmd_demo(args) -> int:
     return _finish(result, out)
 
 
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
+    return n
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {n}")
+    return n
+
+
+def _cmd_batch(args) -> int:
+    from idp.applications.batch import run_batch
+
+    out = Path(args.output) if args.output else Path("out") / Path(args.spec).stem
+    result = run_batch(
+        args.spec,
+        out,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        threads_per_job=args.threads_per_job,
+        retries=args.retries,
+        resume=args.resume,
+        serial=args.serial,
+        progress=not args.quiet,
+        dashboard=args.dashboard,
+    )
+    rows = result.rows
+    ok = sum(r["status"] == "ok" for r in rows)
+    skipped = f" ({len(result.skipped)} finished earlier, skipped)" if result.skipped else ""
+    print(f"jobs:     {len(rows)}: {ok} ok, {len(rows) - ok} failed{skipped}")
+    print(f"time:     {result.wall_time:.1f} s on {result.cluster}")
+    for r in result.failed:
+        print(f"FAILED:   {r['job']} after {r['attempts']} attempt(s): {r['error']}")
+    others = ", ".join(t.name for t in result.tables if t.name != "results.md")
+    print(f"results:  {result.out / 'results.md'} ({others}, batch.json; each job in {result.out / 'jobs'}/)")
+    if result.ok:
+        return 0
+    # a job whose frames failed the injectivity check outranks any other failure
+    return EXIT_CERTIFICATE if any(r.get("exit_code") == EXIT_CERTIFICATE for r in result.failed) else EXIT_SOLVER
+
+
 def _cmd_bench(args) -> int:
     _set_threads(args.threads)
     from idp.bench.suite import main as bench_main
@@ -465,10 +516,33 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--threads", type=_thread_count)
     b.add_argument("--steps", type=int, help="override every scene's step count (for quick looks)")
     b.set_defaults(func=_cmd_bench)
+
+    bt = sub.add_parser(
+        "batch",
+        help="run many scenes or a parameter sweep as jobs on a Dask cluster (local by default); see docs/batch.md",
+    )
+    bt.add_argument("spec", help="batch spec file (TOML or JSON): a base scene with a grid or cases, and/or jobs")
+    bt.add_argument("-o", "--output", help="output folder (default: out/<spec name>)")
+    where = bt.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDR", help="a running dask.distributed scheduler (tcp://host:8786)")
+    where.add_argument("--workers", type=_positive_int, help="workers of the local cluster (default: one per core)")
+    where.add_argument("--serial", action="store_true", help="no Dask: the jobs one after another on this machine")
+    bt.add_argument(
+        "--threads-per-job", type=_positive_int, help="threads of each job (default: cores / workers, 1 on --scheduler)"
+    )
+    bt.add_argument("--retries", type=_non_negative_int, help="extra attempts of a failed job (default: the spec's)")
+    bt.add_argument("--resume", action="store_true", help="skip finished jobs; continue the others from checkpoints")
+    bt.add_argument("--dashboard", metavar="ADDR", help="serve the local cluster's Dask dashboard there (e.g. :8787)")
+    bt.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    bt.set_defaults(func=_cmd_batch)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    if os.environ.get("IDP_BATCH_PARENT"):  # a job of `idp batch`: ends with the worker that started it
+        from idp.applications.batch import watch_parent_from_env
+
+        watch_parent_from_env()
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="idp: %(levelname)s: %(message)s"

@@ -43,3 +43,7 @@ class OutputError(IdpError):
 
 class MesherUnavailableError(IdpError):
     """An optional mesher (TetGen, through the ``idp[remesh]`` extra) is needed but not installed."""
+
+
+class MissingDependencyError(IdpError):
+    """An optional dependency a command needs is not installed (e.g. Dask for ``idp batch``: ``idp[batch]``)."""

@@ -29,6 +29,7 @@ __all__ = [
     "dump_scene_toml",
     "format_validation_error",
     "load_scene",
+    "read_scene_data",
     "resolved_scene_dict",
     "scene_from_dict",
 ]
@@ -44,6 +45,17 @@ def load_scene(path: str | Path) -> Scene:
     The scene ``name`` defaults to the file stem.  Any problem raises :class:`SceneError`
     whose message starts with the file name.
     """
+    p = Path(path)
+    data = read_scene_data(p)
+    if "name" not in data:
+        data = {"name": p.stem, **data}
+    return scene_from_dict(data, base_dir=p.parent.absolute(), source=str(p))
+
+
+def read_scene_data(path: str | Path) -> dict[str, Any]:
+    """A ``.toml`` or ``.json`` file parsed into plain data (a table at the top level), not yet validated:
+    what :func:`load_scene` validates, and what a batch applies its overrides to. :class:`SceneError` names
+    the file."""
     p = Path(path)
     ext = p.suffix.lower()
     if ext not in (".toml", ".json"):
@@ -74,9 +86,7 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{p}: cannot read scene file: {err}") from None
     if not isinstance(data, dict):
         raise SceneError(f"{p}: the top level must be a table/object (got {type(data).__name__})")
-    if "name" not in data:
-        data = {"name": p.stem, **data}
-    return scene_from_dict(data, base_dir=p.parent.absolute(), source=str(p))
+    return data
 
 
 #: deepest nesting of tables and arrays a scene may have: the schema's deepest key,
