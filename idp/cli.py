@@ -311,16 +311,6 @@ def _cmd_demo(args) -> int:
     return _finish(result, out)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
-    return n
-
-
 def _non_negative_int(text: str) -> int:
     try:
         n = int(text)
