@@ -357,8 +357,8 @@ def test_a_worker_killed_mid_job_has_its_job_rerun_elsewhere(inputs, tmp_path):
     assert attempts[1]["worker_pid"] != a1["worker_pid"]
     stats = load_stats(job / "run" / "stats.json")
     assert stats["summary"]["all_certified"] is True and stats["summary"]["last_step"] == 600
-    starts = [r["step"] for r in stats["steps"] if r.get("initial")]
-    assert starts[-1] > 0  # the re-run went on from the checkpoint, not from step 0
+    resumes = stats["summary"].get("resumes", [])
+    assert resumes and resumes[-1]["after_step"] > 0  # the re-run went on from the checkpoint, not from step 0
     assert [r["step"] for r in stats["steps"] if not r.get("initial")] == list(range(1, 601))
     assert _rows(out)["slow"]["attempts"] == "2"
 
