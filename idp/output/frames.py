@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -228,7 +229,7 @@ class FrameWriter:
             written["pvd"] = "frames.pvd"
         return written
 
-    def resume(self, last_frame: int, time_of) -> None:
+    def resume(self, last_frame: int, time_of: Callable[[int], float]) -> None:
         """Continue an interrupted series after frame ``last_frame``: adopt the frames on disk up to it (their PVD
         times ``time_of(frame)``, the formula they were written with), remove later frames and temporary files an
         interruption left (they are rewritten by the resumed run), and rewrite the PVD index."""

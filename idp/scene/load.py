@@ -8,10 +8,9 @@ import math
 import os
 import re
 import sys
-import types
 import typing
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
@@ -19,6 +18,7 @@ from idp.errors import SceneError
 from idp.fs import is_dir, is_file, why
 from idp.paper_data import DATA_PREFIX, resolve_data_path
 from idp.scene.schema import MODELS, Scene
+from idp.scene.schema_base import unwrap_type
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -176,21 +176,6 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
 # Error formatting
 
 
-def _unwrap(tp: Any) -> Any:
-    """Strip Annotated and Optional; a multi-member union is returned as is."""
-    while True:
-        origin = typing.get_origin(tp)
-        if origin is typing.Annotated:
-            tp = typing.get_args(tp)[0]
-        elif origin is Union or origin is getattr(types, "UnionType", Union):
-            args = [a for a in typing.get_args(tp) if a is not type(None)]
-            if len(args) != 1:
-                return tp
-            tp = args[0]
-        else:
-            return tp
-
-
 def _is_model(tp: Any) -> bool:
     return isinstance(tp, type) and issubclass(tp, BaseModel)
 
@@ -204,7 +189,7 @@ def _walk(root: Any, loc: tuple[str | int, ...]) -> tuple[list[str | int], Any]:
     tp: Any = root
     last_model: Any = None
     for item in loc:
-        tp = _unwrap(tp)
+        tp = unwrap_type(tp)
         if isinstance(item, int):
             parts.append(item)
             args = typing.get_args(tp) if typing.get_origin(tp) is list else ()
@@ -216,12 +201,12 @@ def _walk(root: Any, loc: tuple[str | int, ...]) -> tuple[list[str | int], Any]:
             field = tp.model_fields.get(item)
             tp = field.annotation if field is not None else None
             continue
-        members = [m for m in typing.get_args(tp) if _is_model(_unwrap(m))] if tp is not None else []
+        members = [m for m in typing.get_args(tp) if _is_model(unwrap_type(m))] if tp is not None else []
         if members:  # a discriminated-union tag such as 'ball'
             match = [
-                _unwrap(m)
+                unwrap_type(m)
                 for m in members
-                if "shape" in _unwrap(m).model_fields and _unwrap(m).model_fields["shape"].default == item
+                if "shape" in unwrap_type(m).model_fields and unwrap_type(m).model_fields["shape"].default == item
             ]
             tp = match[0] if match else None
             continue

@@ -4,14 +4,14 @@ plain data by key path, as a batch applies them (:mod:`idp.scene.batch_schema`) 
 from __future__ import annotations
 
 import re
-import types
 import typing
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 from pydantic import BaseModel
 
 from idp.scene.schema import Scene
+from idp.scene.schema_base import unwrap_type
 
 __all__ = ["KeyPath", "apply_override", "field_type", "format_key_path", "is_path_field", "parse_key_path"]
 
@@ -49,27 +49,12 @@ def format_key_path(parts: KeyPath) -> str:
     return out
 
 
-def _unwrap(tp: Any) -> Any:
-    """Strip Annotated and Optional (a union of several types other than None is returned as is)."""
-    while True:
-        origin = typing.get_origin(tp)
-        if origin is typing.Annotated:
-            tp = typing.get_args(tp)[0]
-        elif origin is Union or origin is getattr(types, "UnionType", Union):
-            args = [a for a in typing.get_args(tp) if a is not type(None)]
-            if len(args) != 1:
-                return tp
-            tp = args[0]
-        else:
-            return tp
-
-
 def field_type(parts: KeyPath, root: type[BaseModel] = Scene) -> Any:
     """The annotated type of the scene field at ``parts`` (Optional and Annotated stripped), or None where the
     schema has no such key or the path runs into a union (a generator's shape-dependent keys)."""
     tp: Any = root
     for part in parts:
-        tp = _unwrap(tp)
+        tp = unwrap_type(tp)
         if isinstance(part, int):
             if typing.get_origin(tp) is not list:
                 return None
@@ -81,7 +66,7 @@ def field_type(parts: KeyPath, root: type[BaseModel] = Scene) -> Any:
             tp = field.annotation
         else:
             return None
-    return _unwrap(tp)
+    return unwrap_type(tp)
 
 
 def is_path_field(parts: KeyPath) -> bool:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any
+import types
+import typing
+from typing import Annotated, Any, Union
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
 from pydantic_core import PydanticCustomError
@@ -132,3 +134,19 @@ class Rotation(_Model):
         if v is not None and not any(x != 0 for x in v):
             raise ValueError("must be non-zero")
         return v
+
+
+def unwrap_type(tp: Any) -> Any:
+    """A field annotation without Annotated and Optional (a union of several non-None types is returned as is):
+    what the scene loader's error paths and the batch's key-path overrides walk through."""
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is typing.Annotated:
+            tp = typing.get_args(tp)[0]
+        elif origin is Union or origin is getattr(types, "UnionType", Union):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            if len(args) != 1:
+                return tp
+            tp = args[0]
+        else:
+            return tp
