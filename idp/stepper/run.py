@@ -87,7 +87,9 @@ def _load_condition_states(ck: dict[str, np.ndarray], system, path: Path) -> Non
             cond.load_state({k[len(pre) :]: v for k, v in ck.items() if k.startswith(pre)})
     if getattr(system, "contact_pattern", None) is not None:
         try:
-            system.contact_pattern.load_state({k[9:]: v for k, v in ck.items() if k.startswith("pattern__")})
+            system.contact_pattern.load_state(
+                {k.removeprefix("pattern__"): v for k, v in ck.items() if k.startswith("pattern__")}
+            )
         except ValueError as exc:
             raise SolverError(f"checkpoint {path}: {exc}; remove it to start the run over") from None
 
