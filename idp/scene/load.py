@@ -349,11 +349,11 @@ def resolved_scene_dict(scene: Scene) -> dict[str, Any]:
     return scene.model_dump(mode="json", exclude_none=True)
 
 
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
 def _key(k: str) -> str:
-    return k if _BARE_KEY.match(k) else json.dumps(k, ensure_ascii=False)
+    return k if _BARE_KEY.fullmatch(k) else json.dumps(k, ensure_ascii=False)  # fullmatch: "$" passes "a\n"
 
 
 def _toml_value(v: Any) -> str:

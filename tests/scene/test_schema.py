@@ -295,3 +295,14 @@ def test_dump_toml_minimal_round_trip(tmp_path: Path) -> None:
     scene = load_scene(write(tmp_path, "mini.toml", MINIMAL_TOML))
     again = load_scene(write(tmp_path, "again.toml", dump_scene_toml(scene)))
     assert again == scene and again.name == "mini"
+
+
+def test_a_key_ending_in_a_line_break_is_quoted_in_error_paths():
+    # found by tests/fuzz: `re.match("^...$")` accepts "0\n" (``$`` matches before a final newline), so the key was
+    # printed bare and the error broke over two lines without naming the source on the second
+    from idp.scene.load import scene_from_dict
+
+    with pytest.raises(SceneError) as err:
+        scene_from_dict({"objects": [{"generate": {"shape": "ball"}, "fixed": [{"0\n": None}]}]}, source="s.toml")
+    lines = str(err.value).splitlines()
+    assert all(line.startswith("s.toml: ") for line in lines) and '"0\\n"' in str(err.value)
