@@ -505,6 +505,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("-o", "--output", default="bench/results")
     b.add_argument("--threads", type=_thread_count)
     b.add_argument("--steps", type=int, help="override every scene's step count (for quick looks)")
+    b.add_argument(
+        "--with-reference",
+        action="store_true",
+        help="run the authors' reference code (../shared/reference or $IDP_REFERENCE) in turn with idp on this "
+        "machine and report same-run speed-ups",
+    )
+    b.add_argument("--runs", type=int, help="runs of each code per scene (default: 1 quick tier, 2 full tier)")
+    b.add_argument("--reference-timeout", type=float, help="seconds after which a reference run is abandoned")
     b.set_defaults(func=_cmd_bench)
 
     bt = sub.add_parser(

@@ -1,8 +1,13 @@
 """`idp bench`: run the §6 suite scene by scene (each in its own process, for a clean peak-memory figure),
-write one JSON per scene, a Markdown table beside the reference figures, and PNG plots.
+write one JSON per scene, a Markdown table and PNG plots.
 
-    idp bench --quick -o bench/results/quick      # the tier to run before every performance change
-    idp bench -o bench/results/full               # everything
+    idp bench --quick -o bench/results/quick                   # the tier to run before every performance change
+    idp bench -o bench/results/full                            # everything
+    idp bench --quick --with-reference -o bench/results/ref    # idp and the authors' code in turn, same machine
+
+Speed-ups are reported only from ``--with-reference`` runs (both codes on this machine, alternating); without
+it the table gives idp's own figures beside the reference's recorded Newton iterations and fills, which do not
+depend on the machine (its runs are deterministic).
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ import argparse
 import json
 import math
 import resource
+import statistics
 import subprocess
 import sys
 import time
@@ -18,6 +24,7 @@ from pathlib import Path
 
 from idp.bench.machine import describe, summary
 from idp.bench.reference import PAPER, REFERENCE
+from idp.bench.reference_run import REFERENCE_CASES, compare, find_reference, run_reference
 
 
 def _tiny_scene():
@@ -103,25 +110,30 @@ def run_child(name: str, out: Path, steps: int | None) -> dict:
         ),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
+        "cage_volume": meta.get("cage_volume"),
         "machine": describe(),
     }
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     return result
 
 
-def write_table(results: list[dict], out: Path, machine: dict | None = None) -> str:
-    """results.md: the machine (header), the per-scene table, the per-iteration split; returns the text."""
+def write_table(results: list[dict], out: Path, machine: dict | None = None, compared: dict | None = None) -> str:
+    """results.md: the machine (header), the same-run comparison with the reference (when run), idp's per-scene
+    table, the per-iteration split of both codes; returns the text."""
+    compared = compared or {}
+    same_run = _same_run_rows(results, compared) if compared else []
     rows = [
-        "| scene | verts / tets | steps | wall, process (s) | ref wall (s) | speed-up | Newton its (ref) "
-        "| s / it (ref) | fill, volume or worst Ψ (ref) | peak RSS MB (ref) | certified |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "",
+        "idp per scene (Newton iterations and fill beside the reference's recorded ones, which do not depend on "
+        "the machine; speed-ups only from the same-run table)",
+        "",
+        "| scene | verts / tets | steps | wall, process (s) | Newton its (ref) | s / it "
+        "| fill, volume or worst Ψ (ref) | peak RSS MB | certified |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         ref = REFERENCE.get(r["scene"], {})
-        rw = ref.get("wall")
         wall = r.get("wall_process", r["wall_total"])
-        speed = f"{rw / wall:.2f}×" if rw else "–"
-        ref_spi = f"{rw / ref['newton_iterations']:.3f}" if rw else "–"
         fill = f"{100 * r['fill_final']:.2f} %" if r["fill_final"] is not None else "–"
         rfill = f"{100 * ref['fill']:.2f} %" if ref.get("fill") is not None else "–"
         if r.get("volume_ratio") is not None:  # flows: enclosed-volume growth instead of a fill fraction
@@ -130,30 +142,29 @@ def write_table(results: list[dict], out: Path, machine: dict | None = None) -> 
         if r.get("distortion") and r.get("fill_final") is None:  # min-max runs: the worst element at the end
             fill = f"worst Ψ {r['distortion']['worst']:.3g}"
         rows.append(
-            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} | {rw if rw else '–'} "
-            f"| {speed} | {r['newton_iterations']} ({ref.get('newton_iterations', '–')}) "
-            f"| {r['seconds_per_iteration']:.3f} ({ref_spi}) | {fill} ({rfill}) "
-            f"| {r['peak_rss_mb']:.0f} ({ref.get('peak_rss_mb', '–')}) | {r['certified_frames']}/{r['steps']} |"
+            f"| {r['scene']} | {r['vertices']} / {r['tets']} | {r['steps']} | {wall:.1f} "
+            f"| {r['newton_iterations']} ({ref.get('newton_iterations', '–')}) "
+            f"| {r['seconds_per_iteration']:.3f} | {fill} ({rfill}) "
+            f"| {r['peak_rss_mb']:.0f} | {r['certified_frames']}/{r['steps']} |"
         )
+    keys = ("assembly", "linear_solve", "ccd", "line_search", "contact_build", "certificate", "other")
     split_rows = [
         "",
-        "Per Newton iteration (seconds): where the time goes",
+        "Per Newton iteration (seconds): where the time goes"
+        + (" (reference rows: its own timing tree, grouped as listed in docs/benchmarks.md)" if compared else ""),
         "",
-        "| scene | assembly | linear solve | CCD | line search (trial energies) | contact build | certificate | other "
-        "| assembly + CCD + contact build |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| scene | code | assembly | linear solve | CCD | line search (trial energies) | contact build | certificate "
+        "| other | all but the solve |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
-        s = r["per_iteration_split"]
-        rest = s.get("assembly", 0.0) + s.get("ccd", 0.0) + s.get("contact_build", 0.0)
-        split_rows.append(
-            f"| {r['scene']} | "
-            + " | ".join(
-                f"{s.get(k, 0.0):.4f}"
-                for k in ("assembly", "linear_solve", "ccd", "line_search", "contact_build", "certificate", "other")
-            )
-            + f" | {rest:.4f} |"
-        )
+        ref_split = compared.get(r["scene"], {}).get("reference_split")
+        for code, s in (("idp", r["per_iteration_split"]), ("reference", ref_split)):
+            if not s:
+                continue
+            rest = sum(v for k, v in s.items() if k not in ("linear_solve", "outside_solver"))
+            cells = " | ".join("–" if k not in s else f"{s[k]:.4f}" for k in keys)
+            split_rows.append(f"| {r['scene']} | {code} | {cells} | {rest:.4f} |")
     paper = [
         "",
         "Paper's own figures (§6): "
@@ -162,12 +173,44 @@ def write_table(results: list[dict], out: Path, machine: dict | None = None) -> 
         ),
     ]
     header = summary(machine if machine is not None else describe())
-    text = "\n".join(["  \n".join(header), "", *rows, *split_rows, *paper]) + "\n"
+    text = "\n".join(["  \n".join(header), *same_run, *rows, *split_rows, *paper]) + "\n"
     (out / "results.md").write_text(text)
     return text
 
 
-def write_plots(results: list[dict], out: Path) -> None:
+def _same_run_rows(results: list[dict], compared: dict) -> list[str]:
+    """The same-run table: idp and the reference alternating on this machine, medians and per-run ratios."""
+    rows = [
+        "",
+        "Same machine, same run: idp and the authors' reference code alternating (whole process wall, medians)",
+        "",
+        "| scene | runs | idp wall (s) | reference wall (s) | speed-up (per run) | Newton its idp / ref "
+        "| fill idp / ref | peak RSS MB idp / ref |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        c = compared.get(r["scene"])
+        if c is None:
+            continue
+        if "unavailable" in c:
+            rows.append(
+                f"| {r['scene']} | – | {r.get('wall_process', r['wall_total']):.1f} | – | {c['unavailable']} "
+                "| – | – | – |"
+            )
+            continue
+        per_run = ", ".join(f"{x:.2f}" for x in c["speedup_per_run"])
+        fills = "–" if c["idp_fill"] is None else f"{100 * c['idp_fill']:.2f} %"
+        rfill = "–" if c["reference_fill"] is None else f"{100 * c['reference_fill']:.2f} %"
+        rows.append(
+            f"| {r['scene']} | {c['runs']} | {c['idp_wall_median']:.1f} | {c['reference_wall_median']:.1f} "
+            f"| **{c['speedup']:.2f}×** ({per_run}) "
+            f"| {c['idp_newton_iterations']} / {c['reference_newton_iterations']} "
+            f"| {fills} / {rfill} | {c['idp_peak_rss_mb']:.0f} / {c['reference_peak_rss_mb']:.0f} |"
+        )
+    return rows
+
+
+def write_plots(results: list[dict], out: Path, compared: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -193,14 +236,15 @@ def write_plots(results: list[dict], out: Path) -> None:
         ax.loglog(n, t, "o-", label="idp")
         for ni, ti, nm in pts:
             ax.annotate(nm, (ni, ti), fontsize=7)
+        same_run = {k: c for k, c in (compared or {}).items() if "unavailable" not in c}
         ref = [
-            (REFERENCE[nm]["verts"], REFERENCE[nm]["wall"] / REFERENCE[nm]["newton_iterations"])
-            for nm in names
-            if nm in REFERENCE
+            (n_, same_run[nm]["reference_wall_median"] / same_run[nm]["reference_newton_iterations"])
+            for n_, nm in zip(n, names, strict=True)
+            if nm in same_run
         ]
-        if ref:
+        if ref:  # only from the same run (a time taken on another machine is not comparable)
             rn, rt = zip(*ref, strict=True)
-            ax.loglog(rn, rt, "s--", label="reference (C++)")
+            ax.loglog(rn, rt, "s--", label="reference (C++), same run")
         if len(n) >= 2:
             slope = math.log(t[-1] / t[0]) / math.log(n[-1] / n[0])
             ax.set_title(f"seconds per Newton iteration (idp slope {slope:.2f})")
@@ -212,6 +256,81 @@ def write_plots(results: list[dict], out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "scaling.png", dpi=120)
     plt.close(fig)
+
+
+def _run_idp(name: str, out: Path, steps: int | None) -> dict | None:
+    """One idp run of a suite scene in its own process; the child's JSON plus the whole-process wall."""
+    cmd = [sys.executable, "-m", "idp.bench.suite", "--child", name, "-o", str(out)]
+    if steps:
+        cmd += ["--steps", str(steps)]
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd)
+    process_wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        print(f"idp bench: {name} failed (exit {r.returncode})", file=sys.stderr)
+        return None
+    res = json.loads((out / f"{name}.json").read_text())
+    res["wall_process"] = process_wall  # whole process, start-up and loading included (as the reference's)
+    (out / f"{name}.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def _print_idp(res: dict) -> None:
+    fill = "–" if res["fill_final"] is None else f"{100 * res['fill_final']:.2f} %"
+    print(
+        f"  idp: {res['wall_process']:.1f} s, {res['newton_iterations']} Newton its, fill {fill}, "
+        f"{res['certified_frames']}/{res['steps']} frames certified",
+        flush=True,
+    )
+
+
+def _run_pairs(name: str, out: Path, runs: int, reference: Path | None, args) -> tuple[list[dict], dict | None]:
+    """``runs`` idp runs of one scene, alternating with reference runs when asked; (idp runs, comparison)."""
+    from idp.bench.data import find_data_dir
+
+    case = REFERENCE_CASES.get(name) if args.with_reference else None
+    unavailable = None
+    if args.with_reference and case is None:
+        unavailable = "no reference counterpart"
+    elif args.with_reference and reference is None:
+        unavailable = "reference not found (IDP_REFERENCE)"
+    elif args.with_reference and args.steps:
+        unavailable = "--steps changes idp's run only"
+    idp_runs: list[dict] = []
+    ref_runs: list[dict] = []
+    for i in range(runs):
+        res = _run_idp(name, out, args.steps)
+        if res is None:
+            break
+        idp_runs.append(res)
+        _print_idp(res)
+        if unavailable is None and case is not None and reference is not None:
+            work = out / "reference" / name / f"run{i + 1}"
+            try:
+                ref = run_reference(reference, case, work, find_data_dir(), timeout=args.reference_timeout)
+            except (RuntimeError, ValueError, subprocess.TimeoutExpired) as exc:
+                print(f"idp bench: {exc}", file=sys.stderr)
+                unavailable = "reference run failed (see stderr)"
+                continue
+            ref_runs.append(ref)
+            print(
+                f"  reference ({case.command}): {float(ref['wall_s']):.1f} s, {ref['newton_its']} Newton its, "
+                f"peak {float(ref['peak_rss_mb']):.0f} MB",
+                flush=True,
+            )
+    if not idp_runs:
+        return [], None
+    if not args.with_reference:
+        return idp_runs, None
+    if unavailable is not None or not ref_runs:
+        return idp_runs, {"unavailable": unavailable or "no reference run finished"}
+    comparison = compare(idp_runs, ref_runs, idp_runs[-1].get("cage_volume"))
+    comparison["reference_command"] = case.command if case else None
+    comparison["reference_note"] = case.note if case else ""
+    comparison["reference_runs"] = ref_runs
+    (out / f"{name}.reference.json").write_text(json.dumps(comparison, indent=1))
+    print(f"  speed-up {comparison['speedup']:.2f}× (median of {comparison['runs']})", flush=True)
+    return idp_runs, comparison
 
 
 def main(args) -> int:
@@ -233,33 +352,40 @@ def main(args) -> int:
             return 2
         tiers = ("quick",) if args.quick else ("quick", "full")
         names = [n for n, (_, tier) in table.items() if tier in tiers]
-    results = []
+    runs = args.runs or (1 if args.quick or not args.with_reference else 2)
+    reference = None
+    if args.with_reference:
+        from idp.bench.data import find_data_dir
+
+        reference = find_reference(find_data_dir())
+        if reference is None:
+            print(
+                "idp bench: the authors' reference code was not found (set IDP_REFERENCE to the folder with "
+                "run.sh); idp runs alone and the speed-up is reported as unavailable",
+                file=sys.stderr,
+            )
+        else:
+            print(f"idp bench: reference {reference}, {runs} run(s) of each code per scene, alternating", flush=True)
+    results, compared = [], {}
     for name in names:
         print(f"idp bench: {name} ...", flush=True)
-        cmd = [sys.executable, "-m", "idp.bench.suite", "--child", name, "-o", str(out)]
-        if getattr(args, "steps", None):
-            cmd += ["--steps", str(args.steps)]
-        t0 = time.perf_counter()
-        r = subprocess.run(cmd)
-        process_wall = time.perf_counter() - t0
-        if r.returncode != 0:
-            print(f"idp bench: {name} failed (exit {r.returncode})", file=sys.stderr)
+        idp_runs, comparison = _run_pairs(name, out, runs, reference, args)
+        if not idp_runs:
             continue
-        res = json.loads((out / f"{name}.json").read_text())
-        res["wall_process"] = process_wall  # whole process, start-up and loading included (as the reference's)
-        (out / f"{name}.json").write_text(json.dumps(res, indent=1))
+        res = dict(idp_runs[-1])
+        if len(idp_runs) > 1:  # the table shows the median run's wall; every run's wall is kept
+            res["wall_process_runs"] = [r["wall_process"] for r in idp_runs]
+            res["wall_process"] = statistics.median(res["wall_process_runs"])
         results.append(res)
-        fill = "–" if res["fill_final"] is None else f"{100 * res['fill_final']:.2f} %"
-        print(
-            f"  {res['wall_total']:.1f} s, {res['newton_iterations']} Newton its, fill {fill}, "
-            f"{res['certified_frames']}/{res['steps']} frames certified",
-            flush=True,
-        )
+        if comparison is not None:
+            compared[name] = comparison
     if results:
         machine = describe()
-        print(write_table(results, out, machine))
-        write_plots(results, out)
-        (out / "suite.json").write_text(json.dumps({"machine": machine, "results": results}, indent=1))
+        print(write_table(results, out, machine, compared))
+        write_plots(results, out, compared)
+        (out / "suite.json").write_text(
+            json.dumps({"machine": machine, "results": results, "with_reference": compared or None}, indent=1)
+        )
     return 0 if results and all(r["uncertified_frames"] == 0 for r in results) else 1
 
 
