@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-portable lint bench bench-full clean
+.PHONY: venv demo test test-portable lint bench bench-ref bench-full clean
 
 venv: $(STAMP)
 
@@ -43,6 +43,9 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/idp bench --quick -o bench/results/quick
+
+bench-ref: $(STAMP)
+	$(BIN)/idp bench --quick --with-reference -o bench/results/with-reference
 
 bench-full: $(STAMP)
 	$(BIN)/idp bench -o bench/results/full
