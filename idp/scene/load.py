@@ -146,30 +146,45 @@ def scene_from_dict(data: dict[str, Any], base_dir: Path | None = None, *, sourc
         r.input = _absolute(r.input, base)
         scene.objects[0].mesh = r.input  # a sequence (a folder or glob too): opened and checked when built
     for i, ob in enumerate(scene.objects):
-        if ob.mesh is not None and str(ob.mesh).startswith(DATA_PREFIX):
-            try:
-                ob.mesh = resolve_data_path(str(ob.mesh))
-            except FileNotFoundError as exc:
-                missing.append(f"{source}: objects[{i}].mesh: {exc}")
-                continue
-        if ob.mesh is not None and scene.repair is None:
-            ob.mesh = _absolute(ob.mesh, base)
-            sequence = ob.frame is not None and (is_dir(ob.mesh) or any(ch in str(ob.mesh) for ch in "*?["))
-            if not is_file(ob.mesh) and not sequence:  # a sequence folder or glob is checked when opened
-                missing.append(f"{source}: objects[{i}].mesh: file not found: {ob.mesh}{why(ob.mesh)}")
-        for j, hd in enumerate(ob.handles):
-            if hd.motion.file is not None:
-                hd.motion.file = _absolute(hd.motion.file, base)
-                if not is_file(hd.motion.file):
-                    missing.append(
-                        f"{source}: objects[{i}].handles[{j}].motion.file: file not found: "
-                        f"{hd.motion.file}{why(hd.motion.file)}"
-                    )
+        missing += _resolve_object_paths(ob, f"objects[{i}]", base, source, mesh=scene.repair is None)
+    for k, stage in enumerate(scene.stages or []):  # objects a stage adds: the same paths, the same folder
+        for i, ob in enumerate(stage.add):
+            missing += _resolve_object_paths(ob, f"stages[{k}].add[{i}]", base, source, mesh=True)
     if missing:
         raise SceneError(_problem_lines(missing, source))
     if base_dir is not None:
         scene.output.dir = _absolute(scene.output.dir, base)
     return scene
+
+
+def _resolve_object_paths(ob: Any, where: str, base: Path, source: str, *, mesh: bool) -> list[str]:
+    """Make an object's file paths absolute (against ``base``; ``data:`` paths against the paper's data) and
+    return one line per missing file: its mesh (unless ``mesh`` is False: a repair sequence, checked when
+    opened), the rest state an earlier stage saved, and per-vertex handle target files."""
+    missing: list[str] = []
+    if ob.mesh is not None and str(ob.mesh).startswith(DATA_PREFIX):
+        try:
+            ob.mesh = resolve_data_path(str(ob.mesh))
+        except FileNotFoundError as exc:
+            return [f"{source}: {where}.mesh: {exc}"]
+    if ob.mesh is not None and mesh:
+        ob.mesh = _absolute(ob.mesh, base)
+        sequence = ob.frame is not None and (is_dir(ob.mesh) or any(ch in str(ob.mesh) for ch in "*?["))
+        if not is_file(ob.mesh) and not sequence:  # a sequence folder or glob is checked when opened
+            missing.append(f"{source}: {where}.mesh: file not found: {ob.mesh}{why(ob.mesh)}")
+    if ob.rest_state is not None:
+        ob.rest_state = _absolute(ob.rest_state, base)
+        if not is_file(ob.rest_state):
+            missing.append(f"{source}: {where}.rest_state: file not found: {ob.rest_state}{why(ob.rest_state)}")
+    for j, hd in enumerate(ob.handles):
+        if hd.motion.file is not None:
+            hd.motion.file = _absolute(hd.motion.file, base)
+            if not is_file(hd.motion.file):
+                missing.append(
+                    f"{source}: {where}.handles[{j}].motion.file: file not found: {hd.motion.file}"
+                    f"{why(hd.motion.file)}"
+                )
+    return missing
 
 
 # ---------------------------------------------------------------------------------------------

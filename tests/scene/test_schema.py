@@ -306,3 +306,22 @@ def test_a_key_ending_in_a_line_break_is_quoted_in_error_paths():
         scene_from_dict({"objects": [{"generate": {"shape": "ball"}, "fixed": [{"0\n": None}]}]}, source="s.toml")
     lines = str(err.value).splitlines()
     assert all(line.startswith("s.toml: ") for line in lines) and '"0\\n"' in str(err.value)
+
+
+def test_paths_of_objects_a_stage_adds_resolve_against_the_scene_file(tmp_path: Path) -> None:
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "cap.vtk").write_text("dummy")
+    data = minimal()
+    data["stages"] = [
+        {"name": "a", "steps": 1},
+        {"name": "b", "steps": 1, "add": [{"name": "cap", "mesh": "meshes/cap.vtk", "rest_state": "cap.npz"}]},
+    ]
+    path = write(tmp_path, "scene.json", json.dumps(data))
+    # the rest state is missing: named with its stage and key, as an absolute path next to the scene file
+    with pytest.raises(SceneError, match=r"stages\[1\]\.add\[0\]\.rest_state: file not found: .*/cap\.npz") as info:
+        load_scene(path)
+    assert "mesh" not in str(info.value)
+    (tmp_path / "cap.npz").write_text("dummy")
+    scene = load_scene(path)
+    added = scene.stages[1].add[0]
+    assert added.mesh == tmp_path / "meshes" / "cap.vtk" and added.rest_state == tmp_path / "cap.npz"
