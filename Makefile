@@ -11,6 +11,7 @@ venv: $(STAMP)
 
 # what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything
 $(CORE): pyproject.toml
+	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 20 s)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[cholmod]'
@@ -18,6 +19,7 @@ $(CORE): pyproject.toml
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
 $(STAMP): $(CORE)
+	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
 	$(BIN)/pip install --quiet -e '.[cholmod,test,lint,usd,remesh,batch]'
 	touch $(STAMP)
 
