@@ -1,4 +1,4 @@
-"""``python -m idp._compile_helper CLAIMS I...``: the second process of :func:`idp.kernel_cache.prepare`."""
+"""``python -m idp._compile_helper PACKAGE CLAIMS I...``: the second process of :func:`idp.kernel_cache.prepare`."""
 
 import sys
 

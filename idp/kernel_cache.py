@@ -299,10 +299,12 @@ def _start_helper(claims: Path, indices: Sequence[int], stderr: Any) -> subproce
     import idp
 
     env = dict(os.environ)
-    # the same idp source as this process (the cache is keyed by the source file), whatever the working directory
-    root = str(Path(idp.__file__).resolve().parent.parent)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    cmd = [sys.executable, "-m", "idp._compile_helper", str(claims), *map(str, indices)]
+    package = Path(idp.__file__).resolve().parent
+    if package.parent.name not in ("site-packages", "dist-packages"):
+        # a source checkout: the same idp as this process whatever the working directory (the cache is keyed by
+        # the source file); an installed idp is found the usual way (site-packages never goes before the stdlib)
+        env["PYTHONPATH"] = str(package.parent) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    cmd = [sys.executable, "-m", "idp._compile_helper", str(package), str(claims), *map(str, indices)]
     try:
         return subprocess.Popen(
             cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env
@@ -313,11 +315,17 @@ def _start_helper(claims: Path, indices: Sequence[int], stderr: Any) -> subproce
 
 
 def helper_main(argv: Sequence[str]) -> int:
-    """The helper process: compile the given kernels (indices into :data:`KERNELS`) that it can claim, largest
-    first, printing ``start i`` / ``done i`` for the parent's progress bar."""
-    claims = Path(argv[0])
+    """The helper process (arguments: the parent's idp package folder, the claims folder, kernel indices into
+    :data:`KERNELS`): compile the kernels it can claim, largest first, printing ``start i`` / ``done i`` for the
+    parent's progress bar. Exit 2 without compiling when this is not the parent's idp (another cache)."""
+    import idp
+
+    if Path(idp.__file__).resolve().parent != Path(argv[0]):
+        print(f"idp compile helper: imported {idp.__file__}, not the parent's {argv[0]}", file=sys.stderr)
+        return 2
+    claims = Path(argv[1])
     with _serialized_cache_writes(claims / "lock"):
-        for i in map(int, argv[1:]):
+        for i in map(int, argv[2:]):
             if not _claim(claims, i):
                 continue
             print(f"start {i}", flush=True)

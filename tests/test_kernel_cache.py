@@ -64,6 +64,30 @@ def test_not_announcing_compiles_silently(tmp_path):
     assert r.stderr == ""
 
 
+def test_helper_process_compiles_what_it_claims_into_the_shared_cache(tmp_path):
+    import idp
+
+    i, j = (kc.KERNELS.index(k) for k in kc.KERNELS if k.name in SMALL)
+    claims = tmp_path / "claims"
+    claims.mkdir()
+    (claims / str(j)).touch()  # j is taken by "another process": the helper leaves it
+    cache = tmp_path / "cache"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(cache)}
+    package = str(Path(idp.__file__).resolve().parent)
+    cmd = [sys.executable, "-m", "idp._compile_helper", package, str(claims), str(i), str(j)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600, check=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["start", str(i), "done", str(i)]
+    check = _python(
+        f"from idp import kernel_cache as kc; print(kc.is_cached(kc.KERNELS[{i}]), kc.is_cached(kc.KERNELS[{j}]))",
+        cache,
+    )
+    assert check.stdout.split() == ["True", "False"]
+    # another idp than the parent's: it compiles nothing (its cache would not be the parent's)
+    r = subprocess.run([*cmd[:3], str(tmp_path), *cmd[4:]], capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 2 and r.stdout == ""
+
+
 def test_a_failed_helper_leaves_the_work_to_this_process(tmp_path):
     code = f"""
         import sys
