@@ -2,19 +2,30 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
+CORE   := $(VENV)/.installed-core
 STAMP  := $(VENV)/.installed
 
 .PHONY: venv demo test test-portable lint bench bench-ref bench-full clean
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+# what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything
+$(CORE): pyproject.toml
+	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 20 s)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[cholmod]'
+	touch $(CORE)
+
+# everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
+$(STAMP): $(CORE)
+	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
 	$(BIN)/pip install --quiet -e '.[cholmod,test,lint,usd,remesh,batch]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+# the first run on a machine compiles the numba kernels (about half a minute on 2 cores, shown as a progress bar);
+# later runs load them from numba's cache in idp/**/__pycache__
+demo: $(CORE)
 	$(BIN)/idp demo -o out/demo
 
 test: $(STAMP)

@@ -17,6 +17,7 @@ import numpy as np
 
 from idp.errors import SceneError
 from idp.fs import check_output_dir, make_output_dir
+from idp.kernel_cache import announcing
 from idp.scene.build import BuiltScene, build_scene
 from idp.scene.load import dump_scene_toml, load_scene, resolved_scene_dict
 from idp.scene.resume_check import check_resume_scene
@@ -46,29 +47,34 @@ def simulate(
 
     ``resume``: continue the interrupted run in ``out_dir`` from its checkpoint; refused when the scene differs
     from the one it was started with (other than ``time.steps`` / ``output.dir``) unless ``force_resume``."""
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
-    out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
-    check_output_dir(out)  # a file where the folder should be: said now, not after building the scene
-    if scene.repair is not None:  # an animation repair: frames in the input's own form, and its report
-        from idp.applications.repair import run_repair
+    with announcing(progress):  # a first run says it is compiling kernels (numba), not silently waits
+        if not isinstance(scene, Scene):
+            scene = load_scene(scene)
+        out = Path(out_dir) if out_dir is not None else Path(scene.output.dir)
+        check_output_dir(out)  # a file where the folder should be: said now, not after building the scene
+        if scene.repair is not None:  # an animation repair: frames in the input's own form, and its report
+            from idp.applications.repair import run_repair
 
-        if targets is not None or check_every_iterate:
-            raise SceneError("simulate: `targets` and `check_every_iterate` are not available for a repair scene")
-        return run_repair(scene, out, progress=progress, resume=resume, steps=steps, force_resume=force_resume)
-    if scene.stages:  # a multi-stage modeling scene: one run per stage (idp.applications.modeling)
-        from idp.applications.modeling import run_stages
+            if targets is not None or check_every_iterate:
+                raise SceneError("simulate: `targets` and `check_every_iterate` are not available for a repair scene")
+            return run_repair(scene, out, progress=progress, resume=resume, steps=steps, force_resume=force_resume)
+        if scene.stages:  # a multi-stage modeling scene: one run per stage (idp.applications.modeling)
+            from idp.applications.modeling import run_stages
 
-        if targets is not None or check_every_iterate or steps is not None:
-            raise SceneError("simulate: `targets`, `check_every_iterate` and `steps` are per stage in a staged scene")
-        return run_stages(scene, out, progress=progress, resume=resume, force_resume=force_resume)  # type: ignore[return-value]
-    # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
-    built = build_scene(scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None)
-    if targets is not None:
-        from idp.stepper.handles import HandleSet
+            if targets is not None or check_every_iterate or steps is not None:
+                raise SceneError(
+                    "simulate: `targets`, `check_every_iterate` and `steps` are per stage in a staged scene"
+                )
+            return run_stages(scene, out, progress=progress, resume=resume, force_resume=force_resume)  # type: ignore[return-value]
+        # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
+        built = build_scene(
+            scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None
+        )
+        if targets is not None:
+            from idp.stepper.handles import HandleSet
 
-        next(c for c in built.system.conditions if isinstance(c, HandleSet)).stream = targets
-    return run_built(scene, built, out, progress=progress, resume=resume, force_resume=force_resume)
+            next(c for c in built.system.conditions if isinstance(c, HandleSet)).stream = targets
+        return run_built(scene, built, out, progress=progress, resume=resume, force_resume=force_resume)
 
 
 def run_built(

@@ -552,7 +552,13 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:  # main() called from a thread other than the main one: SIGTERM keeps its handler
         previous_handler = None
     try:
-        return int(args.func(args) or 0)
+        if args.func is _cmd_check:  # reads meshes only: no kernels, and no numba import for nothing
+            return int(args.func(args) or 0)
+        from idp.kernel_cache import announcing
+
+        # a first run compiles the numba kernels (about a minute on 2 cores): said on stderr, not a silent wait
+        with announcing(not getattr(args, "quiet", False)):
+            return int(args.func(args) or 0)
     except CertificateError as exc:
         print(f"idp: certificate failure: {exc}", file=sys.stderr)
         return EXIT_CERTIFICATE

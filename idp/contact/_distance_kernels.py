@@ -735,7 +735,7 @@ def ee_mollifier_hessian(X, eps_x, g, H):
             H[rv + 2, rw] = k2 * (-pv2 * pw0 + kx * n1) + e2 * cw0
             H[rv + 2, rw + 1] = k2 * (-pv2 * pw1 - kx * n0) + e2 * cw1
             H[rv + 2, rw + 2] = k2 * (pp - pv2 * pw2) + e2 * cw2
-    _mirror_upper(H, 12)
+    _mirror_upper(H, np.int64(12))  # not a literal: the same compiled _mirror_upper as sq_distance_hessian
     return (2.0 - q) * q
 
 

@@ -65,6 +65,15 @@ CHUNK = 64
 
 
 @njit(cache=True, error_model="numpy")
+def _put_row(x, V, v):  # pragma: no cover - compiled
+    """x[:] = V[v] for 3-vectors, element by element: the array assignment ``X[i] = V[v]`` compiles numba's
+    shape-mismatch error path (string formatting, about 2 s of compile time in every process that compiles it)."""
+    x[0] = V[v, 0]
+    x[1] = V[v, 1]
+    x[2] = V[v, 2]
+
+
+@njit(cache=True, error_model="numpy")
 def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps):  # pragma: no cover
     """Candidates i0..i1−1 (face–vertex first, then edge–edge): closest-feature type, squared distance,
     and for edge pairs the mollifier threshold ε_x when ‖e_a × e_b‖² < ε_x (else 0)."""
@@ -74,10 +83,10 @@ def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
     for i in range(i0, i1):
         if i < nf:
             f, v = fv[i, 0], fv[i, 1]
-            X[0] = V[v]
-            X[1] = V[faces[f, 0]]
-            X[2] = V[faces[f, 1]]
-            X[3] = V[faces[f, 2]]
+            _put_row(X[0], V, v)
+            _put_row(X[1], V, faces[f, 0])
+            _put_row(X[2], V, faces[f, 1])
+            _put_row(X[3], V, faces[f, 2])
             t = point_triangle_type(X[0], X[1], X[2], X[3])
             k = gather_stencil(PT_LOCAL[t], X, S)
             ctype[i] = t
@@ -85,10 +94,10 @@ def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
             eps[i] = 0.0
         else:
             ea, eb = ee[i - nf, 0], ee[i - nf, 1]
-            X[0] = V[edges[ea, 0]]
-            X[1] = V[edges[ea, 1]]
-            X[2] = V[edges[eb, 0]]
-            X[3] = V[edges[eb, 1]]
+            _put_row(X[0], V, edges[ea, 0])
+            _put_row(X[1], V, edges[ea, 1])
+            _put_row(X[2], V, edges[eb, 0])
+            _put_row(X[3], V, edges[eb, 1])
             t = edge_edge_type(X[0], X[1], X[2], X[3])
             k = gather_stencil(EE_LOCAL[t], X, S)
             ctype[i] = t
@@ -254,7 +263,7 @@ def _gather(V, verts, local, c, X, S):  # pragma: no cover - compiled
     """X ← the collision's vertices (returns their count n), S ← its distance stencil (returns k)."""
     n = 0
     while n < 4 and verts[c, n] >= 0:
-        X[n] = V[verts[c, n]]
+        _put_row(X[n], V, verts[c, n])
         n += 1
     return n, gather_stencil(local[c], X, S)
 
@@ -265,7 +274,7 @@ def _values_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  # pr
     S4 = np.empty((4, 3))
     for c in range(c0, c1):
         _n, k = _gather(V, verts, local, c, X, S4)
-        d = sq_distance(kind[c], S4[:k])
+        d = sq_distance(np.int64(kind[c]), S4[:k])  # int64 as in _classify_range: one compiled sq_distance
         b = barrier(d, dhat2)
         if eps[c] > 0.0:
             b *= ee_mollifier(X, eps[c])

@@ -293,7 +293,7 @@ def _is_pd(S: np.ndarray, d: int) -> bool:
         return False
     if d == 2:
         return True
-    return _det(S, 3) > 0.0
+    return _det(S, d) > 0.0  # d (= 3 here), not a literal 3: one compiled _det serves every caller
 
 
 @njit(cache=True, error_model="numpy")

@@ -16,13 +16,16 @@ import os
 import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
-import meshio
 import numpy as np
 
 from idp._faults import kill_point
 from idp.output.parts import Part, check_parts
+
+if TYPE_CHECKING:  # imported when a VTU frame is written (a run without VTU output never loads meshio and rich)
+    import meshio
 
 _OBJ_FLOAT = "%.10g"
 
@@ -143,6 +146,8 @@ class FrameWriter:
         point_data: dict[str, np.ndarray] | None,
         cell_data: dict[str, dict[int, np.ndarray]] | None = None,
     ) -> meshio.Mesh:
+        import meshio
+
         n = x.shape[0]
         pts = np.zeros((n, 3))
         pts[:, : self.dim] = x
@@ -220,6 +225,8 @@ class FrameWriter:
             mesh = self._vtu_mesh(x, point_data, cell_data)
             target = self.out_dir / rel
             tmp = target.with_name(target.name + ".tmp")
+            import meshio
+
             meshio.write(tmp, mesh, file_format="vtu", binary=True, compression="zlib")
             kill_point("frame_tmp")
             os.replace(tmp, target)

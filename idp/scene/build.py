@@ -16,6 +16,7 @@ from idp.energies.gravity import GravityPotential
 from idp.energies.inertia import lumped_masses
 from idp.energies.pnorm import PNormEnergy
 from idp.errors import IntersectingInputError, MeshError, SceneError
+from idp.kernel_cache import prepare as prepare_kernels
 from idp.mesh import generate as gen
 from idp.mesh.io import read_mesh
 from idp.mesh.placement import place, select_in_box
@@ -313,6 +314,9 @@ def build_scene(
     free_mask = np.repeat(~pinned, dim)
     if not free_mask.any():
         raise SceneError("every vertex is fixed: nothing to deform")
+    # the input is read and checked: compile what the cache lacks now (both cores, with a progress bar when
+    # announcing) rather than kernel by kernel on first call
+    prepare_kernels(scene)
 
     # contact distance
     diag = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
