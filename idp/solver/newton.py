@@ -230,8 +230,10 @@ class StepSolver:
             if ev is None:
                 ev = self._contact_eval(x, res)
             alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev), ev)
-            res.timings["contact_build"] += t1 - t
-            res.timings["ccd"] += time.perf_counter() - t1
+            t2 = time.perf_counter()
+            cand = s.contact.line_search_candidates(cand, alpha_ccd)
+            res.timings["contact_build"] += t1 - t + time.perf_counter() - t2
+            res.timings["ccd"] += t2 - t1
             alpha *= alpha_ccd
         return alpha, alpha_inv, alpha_ccd, cand
 
