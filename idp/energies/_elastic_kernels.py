@@ -725,6 +725,86 @@ def element_terms(
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def element_terms_scatter(
+    x: np.ndarray,
+    elements: np.ndarray,
+    dm_inv: np.ndarray,
+    volumes: np.ndarray,
+    model: int,
+    param_a: np.ndarray,
+    param_b: np.ndarray,
+    project: bool,
+    power: float,
+    owner: np.ndarray,
+    part_ptr: np.ndarray,
+    part_elements: np.ndarray,
+    base: np.ndarray,
+    stride: np.ndarray,
+    weight: float,
+    data: np.ndarray,
+    grad: np.ndarray,
+) -> None:
+    """Gradient and Hessian of every element added straight into the gradient (flat, unweighted) and into the
+    values of a block CSR matrix (× ``weight``), without the (m, k, k) array of element Hessians.
+
+    Part p of the vertices (``owner[v] == p``) is handled by one thread: it evaluates the elements
+    ``part_elements[part_ptr[p]:part_ptr[p+1]]`` (those with a vertex in part p, ascending) and adds only the rows
+    of its own vertices, so no two threads write one entry (elements spanning two parts are evaluated by both).
+    Every entry thus receives its elements' contributions in increasing element order, whatever the number of
+    parts: the same sums, bit for bit, as evaluating all elements and then scattering them in order.
+    ``base[t, a, b]`` is the CSR position of entry (0, 0) of the block of element t's vertices a, b (< 0: pinned),
+    ``stride[t, a, b]`` its row stride (:class:`~idp.solver.assembly.FixedPatternAssembler`)."""
+    d = x.shape[1]
+    nv = elements.shape[1]
+    k = nv * d
+    for p in prange(part_ptr.size - 1):
+        e_buf = np.empty(CHUNK)
+        g_buf = np.empty((CHUNK, k))
+        h_buf = np.empty((CHUNK, k, k))
+        lo = part_ptr[p]
+        hi = part_ptr[p + 1]
+        for q0 in range(lo, hi, CHUNK):
+            q1 = min(hi, q0 + CHUNK)
+            _element_chunk(
+                q0,
+                q1,
+                part_elements,
+                q0,
+                x,
+                elements,
+                dm_inv,
+                volumes,
+                model,
+                param_a,
+                param_b,
+                True,
+                True,
+                project,
+                power,
+                e_buf,
+                g_buf,
+                h_buf,
+            )
+            for q in range(q0, q1):
+                t = part_elements[q]
+                o = q - q0
+                for a in range(nv):
+                    va = elements[t, a]
+                    if owner[va] != p:
+                        continue
+                    for r in range(d):
+                        grad[d * va + r] += g_buf[o, d * a + r]
+                    for b in range(nv):
+                        p0 = base[t, a, b]
+                        if p0 < 0:
+                            continue
+                        st = stride[t, a, b]
+                        for i in range(d):
+                            for j in range(d):
+                                data[p0 + i * st + j] += weight * h_buf[o, d * a + i, d * b + j]
+
+
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def element_jacobians(x: np.ndarray, elements: np.ndarray, dm_inv: np.ndarray) -> np.ndarray:
     """det F per element (m,) as det(Ds) det(Dm^{-1})."""
     m = elements.shape[0]

@@ -168,11 +168,15 @@ class StepSolver:
         asm = s.assembler
         data = asm.start_data(diag[s.dof_map.free_dofs])
         for i, wt in enumerate(s.terms):  # element Hessians streamed into the matrix, never all held
+            fused = asm.fused_scatter(i) if hasattr(wt.term, "gradient_hessian_into") else None
+            if fused is not None:
+                ge = wt.term.gradient_hessian_into(x, fused, data, s.h * wt.weight, project=True)
+            else:
 
-            def sink(first, blocks, i=i, w=s.h * wt.weight):
-                asm.add_element_blocks(data, i, first, blocks, w)
+                def sink(first, blocks, i=i, w=s.h * wt.weight):
+                    asm.add_element_blocks(data, i, first, blocks, w)
 
-            _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
+                _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
             g += s.h * wt.weight * ge
         data = asm.finish_data(data)
         active = ev is not None and ev.num_active > 0
