@@ -6,18 +6,19 @@ For two primitives with vertices a_i and b_j moving linearly by Δa_i, Δb_j ove
 pair's distance obeys d(α) ≥ d(t) − (α − t)·M. :func:`move_bounds` computes, per candidate and in one parallel
 pass, d(0) (by the closest-feature code of the barrier), M, and by conservative advancement (at most ``ADVANCES``
 exact distance evaluations, each gap reduced by a rounding allowance) a fraction ``first`` before which the pair's
-distance provably stays above (1 − CCD_KEEP)·d(0) > 0.
+distance provably stays above (1 − r)·d(0) > 0, r the narrow phase's conservative rescaling.
 
 Two uses (:meth:`idp.contact.model.ContactModel.max_collision_free_step` and
 :meth:`~idp.contact.model.ContactModel.line_search_candidates`):
 
 - CCD: ipctk's Tight Inclusion looks, for each pair, for the first time its distance falls to
-  min(0.2·d(0), 1e-4) (ipctk's conservative rescaling 0.8 = CCD_KEEP). A pair whose ``first`` is past the step α
-  that CCD allows stays farther than 0.2·d(0) on [0, α]: it cannot collide there, nor would Tight Inclusion have
-  reported it. So the candidates are run through Tight Inclusion by increasing ``first``, in batches doubling
-  from FIRST_BATCH, stopping once the next ``first`` is past the step found so far. The step is the one of all
-  candidates; only the narrow-phase work shrinks. Measured at bunny_3376 (34 recorded moves, 17K–48K candidates
-  each) and bunny_700 (50 moves): the very α of ipctk's ``compute_collision_free_stepsize`` on every move, with
+  min((1 − r)·d(0), 1e-4) (ipctk's conservative rescaling r; its additive CCD to about (1 − r)·d(0)). A pair whose
+  ``first`` is past the step α that CCD allows stays farther than (1 − r)·d(0) on [0, α]: it cannot collide
+  there, nor would the narrow phase have reported it. So the candidates are run through the narrow phase by
+  increasing ``first``, in batches doubling from FIRST_BATCH, stopping once the next ``first`` is past the step
+  found so far. The step is the one of all candidates; only the narrow-phase work shrinks. Measured (r = 0.8) at
+  bunny_3376 (34 recorded moves, 17K–48K candidates each) and bunny_700 (50 moves): the very α of ipctk's
+  ``compute_collision_free_stepsize`` (Tight Inclusion, its own broad phase) on every move, with
   ≈ 470 (bunny_700) and ≈ 190 (bunny_3376) candidates per move left for Tight Inclusion (run in whole batches:
   at least 256) instead of all of them. With M alone (no advancement) 1,500 / 2,100 were left: most close pairs
   slide or part.
@@ -42,8 +43,6 @@ from idp.contact._distance_kernels import (
     sq_distance,
 )
 
-#: A pair is handed to the narrow phase while c·d(0)/M < α (see the module docstring).
-CCD_KEEP = 0.8
 #: Relative allowance on the distance bound when trimming the line-search candidates (rounding of d(0) and M).
 TRIM_SLACK = 1e-9
 #: Distance evaluations of the conservative advancement per candidate (bunny_3376: 0 → 3,200 candidates left for
@@ -150,21 +149,28 @@ def _bounds(V0, V1, faces, edges, fv, ee, keep, advances, dist, speed, first):  
 
 
 def move_bounds(
-    V0: np.ndarray, V1: np.ndarray, faces: np.ndarray, edges: np.ndarray, fv: np.ndarray, ee: np.ndarray
+    V0: np.ndarray,
+    V1: np.ndarray,
+    faces: np.ndarray,
+    edges: np.ndarray,
+    fv: np.ndarray,
+    ee: np.ndarray,
+    rescaling: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(d(0), M, t) of every candidate (face–vertex rows [face, vertex] first, then edge–edge rows [edge, edge]) for
     the linear move V0 → V1: its distance at V0, the largest relative displacement of a vertex of one primitive
     against a vertex of the other, and a fraction of the move before which its distance provably stays above
-    (1 − CCD_KEEP)·d(0) (conservative advancement, at most ADVANCES distance evaluations; ≥ 1: the whole move)."""
+    (1 − ``rescaling``)·d(0) (conservative advancement, at most ADVANCES distance evaluations; ≥ 1: the whole
+    move)."""
     n = fv.shape[0] + ee.shape[0]
     dist, speed, first = np.empty(n), np.empty(n), np.empty(n)
     if n:
-        _bounds(V0, V1, faces, edges, fv, ee, 1.0 - CCD_KEEP, ADVANCES, dist, speed, first)
+        _bounds(V0, V1, faces, edges, fv, ee, 1.0 - rescaling, ADVANCES, dist, speed, first)
     return dist, speed, first
 
 
 def ccd_order(first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Candidates that can come within (1 − CCD_KEEP)·d(0) during the move (``first`` < 1, from
+    """Candidates that can come within (1 − r)·d(0) during the move (``first`` < 1, from
     :func:`move_bounds`), by increasing ``first``: (indices, their ``first``)."""
     live = np.flatnonzero(first < 1.0)
     order = live[np.argsort(first[live], kind="stable")]

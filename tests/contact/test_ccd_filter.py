@@ -32,12 +32,13 @@ def _moved(name, scale, seed):
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_bounds_are_conservative(name):
     """d(0) is the exact distance, M the largest relative vertex displacement, and no pair comes within
-    (1 − CCD_KEEP)·d(0) before its ``first`` fraction (checked on 65 points of the move)."""
+    (1 − r)·d(0) before its ``first`` fraction (checked on 65 points of the move)."""
     x, y, surf, nd = _moved(name, 0.01, 0)
     cm = ContactModel(x, surf, nd, 0.05)
     v0, v1 = cm.surface_positions(x), cm.surface_positions(y)
     fv, ee = cm.sweep_candidates(x, y)
-    dist, speed, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee)
+    r = 0.9
+    dist, speed, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r)
     pairs, is_pt = _pairs(cm, fv, ee)
     assert pairs.shape[0] > 100
     np.testing.assert_allclose(dist, pair_distances(v0, pairs, is_pt), rtol=1e-12, atol=1e-15)
@@ -49,7 +50,7 @@ def test_bounds_are_conservative(name):
         assert speed[i] == pytest.approx(m, rel=1e-12, abs=1e-300)
     assert (first > 0).all() and np.isfinite(first[speed > 0]).all()
     assert np.isinf(first[speed == 0]).all()
-    limit = (1.0 - ccd_filter.CCD_KEEP) * dist
+    limit = (1.0 - r) * dist
     for t in np.linspace(0.0, 1.0, 65):
         d = pair_distances(v0 + t * dv, pairs, is_pt)
         before = first > t
@@ -112,7 +113,7 @@ def test_non_finite_move_is_not_filtered_away():
     v1 = v0.copy()
     v1[0, 0] = np.nan
     fv, ee = cm.sweep_candidates(x, x)
-    _, _, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee)
+    _, _, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, 0.8)
     pairs, _ = _pairs(cm, fv, ee)
     touched = (pairs == 0).any(axis=1)
     assert touched.any() and (first[touched] == 0.0).all()
