@@ -121,7 +121,7 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
                     alpha += A[r, p] * A[r, p]
                     beta += A[r, q] * A[r, q]
                     gamma += A[r, p] * A[r, q]
-                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                if gamma * gamma <= 1e-30 * (alpha * beta):  # |γ| ≤ 1e-15·√(αβ), without the root
                     continue
                 rotated = True
                 zeta = (beta - alpha) / (2.0 * gamma)
