@@ -412,11 +412,10 @@ class ContactModel:
         from idp.contact import ccd_filter
 
         fv, ee = candidates
-        dist, speed, first = ccd_filter.move_bounds(
-            v0, v1, self._faces, self._edges, fv, ee, float(ccd.conservative_rescaling)
-        )
-        self._move_bounds = (candidates, dist, speed)
-        order, first = ccd_filter.ccd_order(first)
+        rescaling = float(ccd.conservative_rescaling)
+        bounds = ccd_filter.move_bounds(v0, v1, self._faces, self._edges, fv, ee, rescaling)
+        self._move_bounds = (candidates, bounds[0], bounds[1])
+        order, first = ccd_filter.ccd_order(bounds[2])
         nf = fv.shape[0]
 
         def narrow_phase(idx: np.ndarray) -> float:
@@ -427,7 +426,10 @@ class ContactModel:
             c.ee_candidates = list(map(ipctk.EdgeEdgeCandidate, sel[:, 0].tolist(), sel[:, 1].tolist()))
             return float(c.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
 
-        return ccd_filter.narrow_phase_in_order(order, first, narrow_phase)
+        def refine(idx: np.ndarray, limit: float) -> np.ndarray:
+            return ccd_filter.refine(idx, limit, v0, v1, self._faces, self._edges, fv, ee, rescaling, bounds)
+
+        return ccd_filter.narrow_phase_in_order(order, first, narrow_phase, refine)
 
     def line_search_candidates(self, candidates, fraction: float):
         """The sweep ``candidates`` that can come within d̂ on the first ``fraction`` of the move of the last

@@ -87,6 +87,38 @@ def test_narrow_phase_stops_once_no_candidate_can_come_close():
     seen.clear()
     assert ccd_filter.narrow_phase_in_order(order, first, lambda idx: seen.append(idx.size) or 1.0) == 1.0
     assert sum(seen) == 1000
+    # a refinement that leaves out every other candidate: the narrow phase sees only the rest
+    seen.clear()
+    refined = []
+
+    def refine(idx, limit):
+        refined.append(limit)
+        return idx[idx % 2 == 0]
+
+    assert ccd_filter.narrow_phase_in_order(order, first, lambda idx: seen.append(idx.size) or 1.0, refine) == 1.0
+    assert sum(seen) == 500 and refined[0] == 1.0
+
+
+def test_refinement_keeps_the_bound_conservative():
+    """After :func:`refine`, no pair comes within (1 − r)·d(0) before its (larger) ``first``."""
+    x, y, surf, nd = _moved("stacked_jittered", 0.03, 4)
+    cm = ContactModel(x, surf, nd, 0.05)
+    v0, v1 = cm.surface_positions(x), cm.surface_positions(y)
+    fv, ee = cm.sweep_candidates(x, y)
+    r = 0.97
+    bounds = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r)
+    before = bounds[2].copy()
+    idx = np.flatnonzero(before < 1.0)
+    left = ccd_filter.refine(idx, 1.0, v0, v1, cm._faces, cm._edges, fv, ee, r, bounds)
+    first = bounds[2]
+    assert (first >= before).all() and (first[idx] > before[idx]).any()
+    assert np.array_equal(left, idx[first[idx] < 1.0])
+    pairs, is_pt = _pairs(cm, fv, ee)
+    limit = (1.0 - r) * bounds[0]
+    for t in np.linspace(0.0, 1.0, 129):
+        d = pair_distances(v0 + t * (v1 - v0), pairs, is_pt)
+        ahead = first > t
+        assert (d[ahead] >= limit[ahead] * (1 - 1e-9)).all()
 
 
 @pytest.mark.parametrize("name", sorted(SCENES))
