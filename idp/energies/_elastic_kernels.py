@@ -121,7 +121,7 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
                     alpha += A[r, p] * A[r, p]
                     beta += A[r, q] * A[r, q]
                     gamma += A[r, p] * A[r, q]
-                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                if gamma * gamma <= 1e-30 * (alpha * beta):  # |γ| ≤ 1e-15·√(αβ), without the root
                     continue
                 rotated = True
                 zeta = (beta - alpha) / (2.0 * gamma)
@@ -318,6 +318,89 @@ def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
         g[r] = -acc
 
 
+@njit(cache=True, error_model="numpy")
+def _hessian3(U, V, S, flip, twist, dmi, v, project, Ya, Sp, Q, lamS, L, R, Hr, H) -> None:  # pragma: no cover
+    """H (12 x 12) = v·(dF/dx)ᵀ (Σ modes λ q qᵀ) (dF/dx) of one tetrahedron, eigenvalues clamped at 0 if ``project``.
+
+    The same sum as the general path, organised for d = 3 (constant loop bounds): every mode is pulled back to
+    the 9 DOFs of nodes 1..3 only (node 0's rows are minus the sum of the others', by translation invariance),
+    the scaling block enters as Σ_il S⁺_il d_i d_lᵀ (S⁺ = S, or S with its eigenvalues clamped when it is not
+    PD), and the 9 × 9 block is one product of 9 left and 9 right vectors. ``dmi`` = Dm⁻¹ of the element;
+    Ya, Sp, Q (3 x 3), lamS (3), L, R, Hr (9 x 9) are scratch."""
+    # Y = Dm^{-1} V: the pull-back of U M Vᵀ to node a (1..3), coordinate s is Σ_ij U[s,i] M[i,j] Y[a-1,j]
+    for a in range(3):
+        for j in range(3):
+            Ya[a, j] = dmi[a, 0] * V[0, j] + dmi[a, 1] * V[1, j] + dmi[a, 2] * V[2, j]
+    # clamped scaling block S⁺
+    if project and not _is_pd(S, 3):
+        for i in range(3):
+            for j in range(3):
+                Sp[i, j] = S[i, j]
+        symmetric_eigen_jacobi(Sp, 3, Q, lamS)
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for l in range(3):
+                    lam = lamS[l]
+                    if lam > 0.0:
+                        acc += Q[i, l] * lam * Q[j, l]
+                Sp[i, j] = acc
+    else:
+        for i in range(3):
+            for j in range(3):
+                Sp[i, j] = S[i, j]
+    # scaling modes: L[i] = d_i (d_i[3a+s] = Y[a,i] U[s,i]), R[i] = v Σ_l S⁺[i,l] d_l
+    for i in range(3):
+        for a in range(3):
+            for s in range(3):
+                L[i, 3 * a + s] = Ya[a, i] * U[s, i]
+    for i in range(3):
+        for p in range(9):
+            R[i, p] = v * (Sp[i, 0] * L[0, p] + Sp[i, 1] * L[1, p] + Sp[i, 2] * L[2, p])
+    # flip / twist modes of each pair (i, j): (U e_i e_jᵀ Vᵀ ± U e_j e_iᵀ Vᵀ)/√2
+    k = 3
+    for i in range(2):
+        for j in range(i + 1, 3):
+            lf = flip[i, j]
+            lt = twist[i, j]
+            if project:
+                lf = max(lf, 0.0)
+                lt = max(lt, 0.0)
+            for a in range(3):
+                for s in range(3):
+                    x1 = Ya[a, j] * U[s, i]
+                    x2 = Ya[a, i] * U[s, j]
+                    gp = _SQRT_HALF * (x1 + x2)
+                    gm = _SQRT_HALF * (x1 - x2)
+                    L[k, 3 * a + s] = gp
+                    R[k, 3 * a + s] = v * lf * gp
+                    L[k + 1, 3 * a + s] = gm
+                    R[k + 1, 3 * a + s] = v * lt * gm
+            k += 2
+    # Hr = Lᵀ R (symmetric: upper triangle, then mirrored)
+    for p in range(9):
+        for q in range(p, 9):
+            acc = 0.0
+            for m in range(9):
+                acc += L[m, p] * R[m, q]
+            Hr[p, q] = acc
+            Hr[q, p] = acc
+    # expand to the 4 nodes: node 0 = −(nodes 1 + 2 + 3)
+    for p in range(9):
+        for q in range(9):
+            H[3 + p, 3 + q] = Hr[p, q]
+    for s in range(3):
+        for q in range(9):
+            c = -(Hr[s, q] + Hr[3 + s, q] + Hr[6 + s, q])
+            H[s, 3 + q] = c
+            H[3 + q, s] = c
+    for s in range(3):
+        for t in range(s, 3):
+            c = -(H[s, 3 + t] + H[s, 6 + t] + H[s, 9 + t])
+            H[s, t] = c
+            H[t, s] = c
+
+
 # --------------------------------------------------------------------------------------
 # main kernel
 # --------------------------------------------------------------------------------------
@@ -325,8 +408,10 @@ def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
 
 @njit(cache=True, error_model="numpy")
 def _element_chunk(
-    t_begin: int,
-    t_end: int,
+    q_begin: int,
+    q_end: int,
+    ids: np.ndarray,
+    out_shift: int,
     x: np.ndarray,
     elements: np.ndarray,
     dm_inv: np.ndarray,
@@ -342,7 +427,8 @@ def _element_chunk(
     grad_out: np.ndarray,
     hess_out: np.ndarray,
 ) -> None:
-    """Serial body of `element_terms` for elements [t_begin, t_end) (scratch allocated once).
+    """Serial body of `element_terms` for elements [q_begin, q_end) (scratch allocated once): element
+    t = q, or t = ids[q] when ``ids`` is not empty; its outputs go to row q − out_shift.
 
     Kept out of the prange loop so numba's parallel passes see a tiny loop (fast compile)."""
     d = x.shape[1]
@@ -368,7 +454,14 @@ def _element_chunk(
     pnorm = power != 1.0
     g = np.empty(k)
     Gs = np.empty((d, k))
-    for t in range(t_begin, t_end):
+    Sp = np.empty((3, 3))
+    Ya = np.empty((3, 3))
+    L9 = np.empty((9, 9))
+    R9 = np.empty((9, 9))
+    Hr9 = np.empty((9, 9))
+    for q in range(q_begin, q_end):
+        t = ids[q] if ids.size else q
+        o = q - out_shift
         v = volumes[t]
         i0 = elements[t, 0]
         for a in range(d):
@@ -383,14 +476,14 @@ def _element_chunk(
                 F[r, c] = acc
         J = _det(F, d)
         if barrier and not (J > 0.0):
-            energy_out[t] = np.inf
+            energy_out[o] = np.inf
             if want_grad:
                 for i in range(k):
-                    grad_out[t, i] = np.nan
+                    grad_out[o, i] = np.nan
             if want_hess:
                 for i in range(k):
                     for j in range(k):
-                        hess_out[t, i, j] = np.nan
+                        hess_out[o, i, j] = np.nan
             continue
         pa = param_a[t]
         pb = param_b[t]
@@ -440,11 +533,11 @@ def _element_chunk(
         if pnorm:
             psi0 = rest_value(model, pa, d)
             gv, g1, g2 = power_tail((psi + psi0) / psi0, power)
-            energy_out[t] = v * psi0 * gv / power
+            energy_out[o] = v * psi0 * gv / power
             c1 = g1 / power
             c2 = g2 / (power * psi0)
         else:
-            energy_out[t] = v * psi
+            energy_out[o] = v * psi
         if want_grad:
             # P = dPsi/dF using F^{-T}[r,c] = Fi[c,r]
             if model == NEO_HOOKEAN:
@@ -487,12 +580,9 @@ def _element_chunk(
                     PW[r, a] = vc1 * acc
             _pull_back(PW, d, g)
             for i in range(k):
-                grad_out[t, i] = g[i]
+                grad_out[o, i] = g[i]
         if want_hess:
-            H = hess_out[t]
-            for i in range(k):
-                for j in range(k):
-                    H[i, j] = 0.0
+            H = hess_out[o]
             if not have_svd:
                 _rotation_svd(F, d, U, sig, V, A)
             _sigma_eigensystem(model, pa, pb, sig, lnJ, d, S, flip, twist)
@@ -503,6 +593,12 @@ def _element_chunk(
                         S[i, j] = c1 * S[i, j] + c2 * dpsi[i] * dpsi[j]
                         flip[i, j] *= c1
                         twist[i, j] *= c1
+            if d == 3:
+                _hessian3(U, V, S, flip, twist, dm_inv[t], v, project, Ya, Sp, Q, lamS, L9, R9, Hr9, H)
+                continue
+            for i in range(k):
+                for j in range(k):
+                    H[i, j] = 0.0
             direct = (not project) or _is_pd(S, d)
             if not direct:
                 symmetric_eigen_jacobi(S, d, Q, lamS)
@@ -604,10 +700,13 @@ def element_terms(
     """
     m = elements.shape[0]
     nchunk = (m + CHUNK - 1) // CHUNK
+    no_ids = np.empty(0, np.int64)
     for ch in prange(nchunk):
         _element_chunk(
             ch * CHUNK,
             min(m, (ch + 1) * CHUNK),
+            no_ids,
+            0,
             x,
             elements,
             dm_inv,
@@ -623,6 +722,86 @@ def element_terms(
             grad_out,
             hess_out,
         )
+
+
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def element_terms_scatter(
+    x: np.ndarray,
+    elements: np.ndarray,
+    dm_inv: np.ndarray,
+    volumes: np.ndarray,
+    model: int,
+    param_a: np.ndarray,
+    param_b: np.ndarray,
+    project: bool,
+    power: float,
+    owner: np.ndarray,
+    part_ptr: np.ndarray,
+    part_elements: np.ndarray,
+    base: np.ndarray,
+    stride: np.ndarray,
+    weight: float,
+    data: np.ndarray,
+    grad: np.ndarray,
+) -> None:
+    """Gradient and Hessian of every element added straight into the gradient (flat, unweighted) and into the
+    values of a block CSR matrix (× ``weight``), without the (m, k, k) array of element Hessians.
+
+    Part p of the vertices (``owner[v] == p``) is handled by one thread: it evaluates the elements
+    ``part_elements[part_ptr[p]:part_ptr[p+1]]`` (those with a vertex in part p, ascending) and adds only the rows
+    of its own vertices, so no two threads write one entry (elements spanning two parts are evaluated by both).
+    Every entry thus receives its elements' contributions in increasing element order, whatever the number of
+    parts: the same sums, bit for bit, as evaluating all elements and then scattering them in order.
+    ``base[t, a, b]`` is the CSR position of entry (0, 0) of the block of element t's vertices a, b (< 0: pinned),
+    ``stride[t, a, b]`` its row stride (:class:`~idp.solver.assembly.FixedPatternAssembler`)."""
+    d = x.shape[1]
+    nv = elements.shape[1]
+    k = nv * d
+    for p in prange(part_ptr.size - 1):
+        e_buf = np.empty(CHUNK)
+        g_buf = np.empty((CHUNK, k))
+        h_buf = np.empty((CHUNK, k, k))
+        lo = part_ptr[p]
+        hi = part_ptr[p + 1]
+        for q0 in range(lo, hi, CHUNK):
+            q1 = min(hi, q0 + CHUNK)
+            _element_chunk(
+                q0,
+                q1,
+                part_elements,
+                q0,
+                x,
+                elements,
+                dm_inv,
+                volumes,
+                model,
+                param_a,
+                param_b,
+                True,
+                True,
+                project,
+                power,
+                e_buf,
+                g_buf,
+                h_buf,
+            )
+            for q in range(q0, q1):
+                t = part_elements[q]
+                o = q - q0
+                for a in range(nv):
+                    va = elements[t, a]
+                    if owner[va] != p:
+                        continue
+                    for r in range(d):
+                        grad[d * va + r] += g_buf[o, d * a + r]
+                    for b in range(nv):
+                        p0 = base[t, a, b]
+                        if p0 < 0:
+                            continue
+                        st = stride[t, a, b]
+                        for i in range(d):
+                            for j in range(d):
+                                data[p0 + i * st + j] += weight * h_buf[o, d * a + i, d * b + j]
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")

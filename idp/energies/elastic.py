@@ -389,6 +389,37 @@ class ElasticEnergy:
             sink(a, h)
         return float(e.sum()), self._scatter(g)
 
+    def gradient_hessian_into(
+        self, x: np.ndarray, scatter: tuple, data: np.ndarray, weight: float, project: bool = True
+    ) -> np.ndarray:
+        """Flat gradient; the element Hessians × ``weight`` are added straight into the matrix values ``data``
+        through ``scatter`` (:meth:`idp.solver.assembly.FixedPatternAssembler.fused_scatter`), never held. The
+        same gradient and values, bit for bit, as :meth:`value_gradient_hessian_groups` followed by the
+        assembler's scatter."""
+        owner, ptr, part_elements, base, stride = scatter
+        g = np.zeros(self.num_vertices * self.dim)
+        if self.elements.shape[0]:
+            _k.element_terms_scatter(
+                self._x(x),
+                self.elements,
+                self.Dm_inv,
+                self.volumes,
+                self._model_id,
+                self._pa,
+                self._pb,
+                bool(project),
+                self.power,
+                owner,
+                ptr,
+                part_elements,
+                base,
+                stride,
+                float(weight),
+                data,
+                g,
+            )
+        return g
+
     def min_jacobian(self, x: np.ndarray) -> float:
         """Smallest det F over the elements (diagnostics; +inf with no elements)."""
         if self.elements.shape[0] == 0:

@@ -95,6 +95,50 @@ def _scatter_blocks(block_verts, blocks, keys, vptr, deg, nfv, d, out, missing):
     return n_missing
 
 
+@numba.njit(cache=True, parallel=True)
+def _scatter_blocks_parts(
+    block_verts, blocks, keys, vptr, deg, nfv, d, out, owner, missing, counts
+):  # pragma: no cover
+    """:func:`_scatter_blocks` on several threads: part p adds only the rows of the vertices with owner p (so no
+    two threads write one entry, and each entry still gets its collisions in increasing order), and lists its
+    absent pairs in missing[p] (up to its length), their number in counts[p]."""
+    for p in numba.prange(missing.shape[0]):
+        n_missing = 0
+        for c in range(block_verts.shape[0]):
+            for a in range(block_verts.shape[1]):
+                va = block_verts[c, a]
+                if va < 0:
+                    break
+                if owner[va] != p:
+                    continue
+                lo, hi = vptr[va], vptr[va + 1]
+                stride = d * deg[va]
+                for b in range(block_verts.shape[1]):
+                    vb = block_verts[c, b]
+                    if vb < 0:
+                        break
+                    key = va * nfv + vb
+                    l, h = lo, hi
+                    while l < h:
+                        mid = (l + h) // 2
+                        if keys[mid] < key:
+                            l = mid + 1
+                        else:
+                            h = mid
+                    if l < hi and keys[l] == key:
+                        base = d * d * vptr[va] + d * (l - vptr[va])
+                        for r in range(d):
+                            for s in range(d):
+                                out[base + r * stride + s] += blocks[c, d * a + r, d * b + s]
+                    else:
+                        if n_missing < missing.shape[1]:
+                            missing[p, n_missing, 0] = c
+                            missing[p, n_missing, 1] = a
+                            missing[p, n_missing, 2] = b
+                        n_missing += 1
+        counts[p] = n_missing
+
+
 class GrowingBlockPattern:
     """Assembles elastic values (on the base layout) plus contact COO entries into a padded block pattern."""
 
@@ -115,6 +159,9 @@ class GrowingBlockPattern:
         self.layout = base
         self._base_to_full: np.ndarray | None = None
         self.growths = 0
+        # contact blocks are added on one thread per part of the rows (equal runs of vertices)
+        self._parts = max(1, min(numba.get_num_threads(), base.nfv))
+        self._owner = np.minimum(np.arange(base.nfv) * self._parts // max(base.nfv, 1), self._parts - 1)
 
     @property
     def last_folded(self) -> bool:
@@ -272,9 +319,25 @@ class GrowingBlockPattern:
             return self._matrix(data)
         d, nfv = self.base.d, self.base.nfv
 
+        parts = self._parts
+
         def scatter(out, missing):
+            """Add the blocks into ``out``; list the absent pairs in ``missing`` (as the serial loop would, by
+            collision, then vertex pair) up to its length; return their number."""
             L = self.layout
-            return _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
+            if parts == 1:
+                return _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
+            cap = max(missing.shape[0], 1)
+            lists = np.empty((parts, cap, 3), np.int64)
+            counts = np.zeros(parts, np.int64)
+            _scatter_blocks_parts(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, self._owner, lists, counts)
+            total = int(counts.sum())
+            if total and missing.shape[0]:
+                found = np.concatenate([lists[p, : min(int(counts[p]), cap)] for p in range(parts)])
+                found = found[np.lexsort((found[:, 2], found[:, 1], found[:, 0]))]
+                k = min(found.shape[0], missing.shape[0])
+                missing[:k] = found[:k]
+            return total
 
         where = np.empty((16 * max(self.fold_limit, 64), 3), np.int64)  # room for the usual few missing pairs
         missing = scatter(data, where)

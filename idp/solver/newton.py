@@ -168,11 +168,15 @@ class StepSolver:
         asm = s.assembler
         data = asm.start_data(diag[s.dof_map.free_dofs])
         for i, wt in enumerate(s.terms):  # element Hessians streamed into the matrix, never all held
+            fused = asm.fused_scatter(i) if hasattr(wt.term, "gradient_hessian_into") else None
+            if fused is not None:
+                ge = wt.term.gradient_hessian_into(x, fused, data, s.h * wt.weight, project=True)
+            else:
 
-            def sink(first, blocks, i=i, w=s.h * wt.weight):
-                asm.add_element_blocks(data, i, first, blocks, w)
+                def sink(first, blocks, i=i, w=s.h * wt.weight):
+                    asm.add_element_blocks(data, i, first, blocks, w)
 
-            _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
+                _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
             g += s.h * wt.weight * ge
         data = asm.finish_data(data)
         active = ev is not None and ev.num_active > 0
@@ -230,8 +234,10 @@ class StepSolver:
             if ev is None:
                 ev = self._contact_eval(x, res)
             alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev), ev)
-            res.timings["contact_build"] += t1 - t
-            res.timings["ccd"] += time.perf_counter() - t1
+            t2 = time.perf_counter()
+            cand = s.contact.line_search_candidates(cand, alpha_ccd)
+            res.timings["contact_build"] += t1 - t + time.perf_counter() - t2
+            res.timings["ccd"] += t2 - t1
             alpha *= alpha_ccd
         return alpha, alpha_inv, alpha_ccd, cand
 

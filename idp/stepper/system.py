@@ -70,7 +70,9 @@ class System:
         self.dof_map = FreeDofMap(self.free_mask)
         self.inertia = Inertia(self.masses, self.dim)
         self.terms: list[WeightedTerm] = [WeightedTerm(b.name, b.elastic) for b in self.bodies] + list(self.extra_terms)
-        self.assembler = FixedPatternAssembler([t.term.element_dofs() for t in self.terms], self.dof_map, dim=self.dim)
+        self.assembler = FixedPatternAssembler(
+            [t.term.element_dofs() for t in self.terms], self.dof_map, dim=self.dim, positions=self.x
+        )
         self.contact_pattern = None
         if self.contact is not None:
             self.collision_dofs = self.contact.collision_dofs()

@@ -216,3 +216,39 @@ def test_folding_bounds_the_sum_of_collisions_that_share_a_coupling():
         exact[np.ix_(ra, rb)] += 2 * block[a * DIM : a * DIM + DIM, b * DIM : b * DIM + DIM]
     gap = M.toarray() - exact
     assert np.linalg.eigvalsh(gap).min() > -1e-9 * np.abs(exact).max()  # M ⪰ exact Hessian
+
+
+@pytest.mark.parametrize("fold_limit", [0, 10_000])
+def test_block_scatter_on_several_threads_equals_the_serial_one(fold_limit):
+    """assemble_blocks with the rows split over threads: the same matrix values, bit for bit, the same folds and
+    the same growth as on one thread (each entry gets its collisions in the same order)."""
+    import numba
+
+    rng, _, asm, blocks, diag = _chain_problem(nv=40, pinned=(0, 39))
+    data = asm.assemble_data([blocks], [1.0], diag)
+    nfv = asm.layout.nfv
+    m = 60
+    bv = np.full((m, 4), -1, np.int32)
+    for c in range(m):
+        k = 1 + c % 4
+        bv[c, :k] = rng.choice(nfv, size=k, replace=False)
+    A = rng.standard_normal((m, 12, 12))
+    cblocks = np.einsum("mij,mkj->mik", A, A)
+    results = []
+    before = numba.get_num_threads()
+    for threads in (1, 2):
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        try:
+            pattern = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+            M = pattern.assemble_blocks(data, bv, cblocks)
+            K = pattern.fold_correction
+        finally:
+            numba.set_num_threads(before)
+        results.append((M, None if K is None else K.toarray(), pattern.growths, pattern.folds))
+    (M1, K1, g1, f1), (M2, K2, g2, f2) = results
+    assert np.array_equal(M1.indptr, M2.indptr) and np.array_equal(M1.indices, M2.indices)
+    np.testing.assert_array_equal(M1.data, M2.data)
+    assert (g1, f1) == (g2, f2) == ((1, 0) if fold_limit == 0 else (0, 1))
+    assert (K1 is None) == (K2 is None)
+    if K1 is not None:
+        np.testing.assert_array_equal(K1, K2)
