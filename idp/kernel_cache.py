@@ -47,6 +47,8 @@ class Kernel:
     name: str
     signature: str  # numba type names, e.g. "(float64[:, ::1], int64)"
     cost: float  # compile seconds measured on the reference machine (2-core AMD EPYC VM): the order of the work
+    # chosen at run time between this entry and another one (thread count, sizes): a run may call either
+    alternative: bool = False
 
     @property
     def label(self) -> str:
@@ -62,12 +64,6 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
     # every run: the Newton matrix (assembly) and the fill estimate of its factor (symbolic)
     "solver": (
         Kernel("idp.solver.assembly", "_scatter_add", "(float64[::1], int64[::1], float64[::1], float64)", 0.05),
-        Kernel(
-            "idp.solver.assembly",
-            "_scatter_vertex_blocks",
-            "(float64[::1], int32[:, :, ::1], int32[:, :, ::1], float64[:, :, ::1], float64, int64[::1])",
-            0.7,
-        ),
         Kernel("idp.solver.symbolic", "_etree", "(int32[::1], int32[::1], int64[::1], int64[::1], int64)", 0.3),
         Kernel("idp.solver.symbolic", "_postorder", "(int64[::1], int64)", 0.3),
         Kernel(
@@ -86,6 +82,14 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1], float64[::1],"
             " boolean, boolean, boolean, float64, float64[::1], float64[:, ::1], float64[:, :, ::1])",
             16.6,
+        ),
+        Kernel(  # the Newton matrix's elastic part: evaluated and added per vertex-row part (fused assembly)
+            _E,
+            "element_terms_scatter",
+            "(float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1], float64[::1],"
+            " boolean, float64, int64[::1], int64[::1], int64[::1], int32[:, :, ::1], int32[:, :, ::1], float64,"
+            " float64[::1], float64[::1])",
+            17.0,
         ),
         Kernel(
             "idp.energies.inversion_filter",
@@ -111,6 +115,12 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             8.0,
         ),
         Kernel("idp.energies._bending_kernels", "hinge_angles", "(float64[:, ::1], int64[:, ::1], float64[::1])", 0.5),
+        Kernel(  # membrane and bending blocks into the Newton matrix
+            "idp.solver.assembly",
+            "_scatter_vertex_blocks",
+            "(float64[::1], int32[:, :, ::1], int32[:, :, ::1], float64[:, :, ::1], float64, int64[::1])",
+            0.7,
+        ),
     ),
     # 3D contact with the compiled barrier (the default): broad phase, collision set, barrier derivatives
     "contact3d": (
@@ -163,6 +173,32 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int32[:, ::1], float64[:, :, ::1], int64[::1], int64[::1], int64[::1], int64, int64, float64[::1],"
             " int64[:, ::1])",
             0.3,
+            alternative=True,  # one thread (or one free vertex)
+        ),
+        Kernel(  # the same on both threads, each adding its own rows
+            "idp.solver.contact_pattern",
+            "_scatter_blocks_parts",
+            "(int32[:, ::1], float64[:, :, ::1], int64[::1], int64[::1], int64[::1], int64, int64, float64[::1],"
+            " int64[::1], int64[:, :, ::1], int64[::1])",
+            0.5,
+            alternative=True,  # two threads or more
+        ),
+    ),
+    # ... and with it the CCD filter in front of Tight Inclusion (idp.contact.ccd_filter)
+    "ccd3d": (
+        Kernel(
+            "idp.contact.ccd_filter",
+            "_bounds",
+            "(float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], float64,"
+            " int64, float64[::1], float64[::1], float64[::1])",
+            4.0,
+        ),
+        Kernel(
+            "idp.contact.ccd_filter",
+            "_refine",
+            "(int64[::1], float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1],"
+            " float64, int64, float64, float64[::1], float64[::1], float64[::1])",
+            4.0,
         ),
     ),
     # contact through ipctk's barrier (2D, or barrier = "ipctk"): its Hessian scattered into the Newton matrix
@@ -190,7 +226,8 @@ def scene_groups(scene: Any) -> list[str]:
     if any(o.kind == "shell" and o.shell is not None and o.shell.youngs_modulus > 0 for o in objects):
         groups.append("shell")
     if scene.contact.enabled:
-        groups.append("contact3d" if scene.dim == 3 and scene.contact.barrier == "compiled" else "contact_ipctk")
+        compiled = scene.dim == 3 and scene.contact.barrier == "compiled"
+        groups += ["contact3d", "ccd3d"] if compiled else ["contact_ipctk"]
     return groups
 
 

@@ -181,8 +181,7 @@ def _resolve_object_paths(ob: Any, where: str, base: Path, source: str, *, mesh:
             hd.motion.file = _absolute(hd.motion.file, base)
             if not is_file(hd.motion.file):
                 missing.append(
-                    f"{source}: {where}.handles[{j}].motion.file: file not found: {hd.motion.file}"
-                    f"{why(hd.motion.file)}"
+                    f"{source}: {where}.handles[{j}].motion.file: file not found: {hd.motion.file}{why(hd.motion.file)}"
                 )
     return missing
 
