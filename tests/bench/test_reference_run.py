@@ -203,8 +203,9 @@ def test_the_real_reference_runs_beside_idp_on_bunny_700(tmp_path, monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", os.environ.get("OMP_NUM_THREADS", "2"))
     assert main(["bench", "--only", "bunny_700", "--with-reference", "--runs", "1", "-o", str(tmp_path)]) == 0
     c = json.loads((tmp_path / "bunny_700.reference.json").read_text())
-    # the reference is deterministic: its figures for this case are fixed (its README)
-    assert c["reference_newton_iterations"] == 236 and c["reference_steps"] == 60
-    assert c["reference_fill"] == pytest.approx(7.81414958 / 8.0, rel=1e-6)
+    # its README's figures for this case (236 iterations, volume 7.81414958 of the box's 8) on an idle machine; under
+    # load its OpenMP reductions may run in another order (measured: 237 iterations while other tests ran)
+    assert abs(c["reference_newton_iterations"] - 236) <= 5 and c["reference_steps"] == 60
+    assert c["reference_fill"] == pytest.approx(7.81414958 / 8.0, rel=2e-3)
     assert c["reference_wall_median"] > 0 and c["speedup"] > 0
     assert set(c["reference_split"]) >= {"assembly", "linear_solve", "ccd", "contact_build"}
