@@ -23,8 +23,9 @@ Two uses (:meth:`idp.contact.model.ContactModel.max_collision_free_step` and
   bunny_3376 (34) the very α of ipctk's ``compute_collision_free_stepsize`` (Tight Inclusion with its own broad
   phase) on every move, 4.6 against 7.7 ms and 10.0 against 30.7 ms per call (machine shared); tube_in_tube
   (26 moves, 60K–84K candidates, buckling self-contact) equal on 22, larger on 4 (at most +12.5 %), 50 against
-  191 ms. Without the further advancement the tube's moves took 73 ms (r = 0.8: ≈ 470 and ≈ 190 candidates
-  per move left for Tight Inclusion at bunny_700 and bunny_3376; with M alone, no advancement, 1,500 / 2,100).
+  191 ms (another series: 128 ms per move without the further advancement, 44 ms with it). At r = 0.8 (before
+  the further advancement) ≈ 470 and ≈ 190 candidates per move were left for Tight Inclusion at bunny_700 and
+  bunny_3376; with M alone, no advancement, 1,500 / 2,100.
 - Line search: a trial point at fraction s ≤ α of the move can only hold pairs with d(0) − s·M < d̂, so the
   trial collision sets are classified from those candidates alone (the same collision set: the others are
   provably farther than d̂ there, and dropping them keeps the order of the rest).
