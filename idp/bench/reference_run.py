@@ -103,7 +103,16 @@ def parse_ref_output(stdout: str) -> dict:
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
-_NODE = re.compile(r"^([┃┏]+) (.+?) : ([0-9.eE+-]+)s \([^)]*\)\s+([0-9.eE+-]+)s")
+_DURATION = r"(?:\d+h )?(?:\d+m )?[0-9.eE+-]+s"  # the authors' timers print e.g. "0.04s", "1m 45.52s", "1h 2m 3.1s"
+_NODE = re.compile(rf"^([┃┏]+) (.+?) : ({_DURATION}) \([^)]*\)\s+({_DURATION})")
+
+
+def _seconds(text: str) -> float:
+    total = 0.0
+    for part in text.split():
+        unit = {"h": 3600.0, "m": 60.0, "s": 1.0}[part[-1]]
+        total += float(part[:-1]) * unit
+    return total
 
 
 def parse_timing_tree(log: str) -> list[tuple[int, str, float]]:
@@ -119,7 +128,7 @@ def parse_timing_tree(log: str) -> list[tuple[int, str, float]]:
         if m:
             prefix = m.group(1)  # "┏" opens a block at its own depth; "┃" lines are children of the open block
             depth = len(prefix) if prefix.endswith("┏") else len(prefix) + 1
-            nodes.append((depth, m.group(2).strip(), float(m.group(4))))
+            nodes.append((depth, m.group(2).strip(), _seconds(m.group(4))))
         elif ln.strip() and not ln.startswith(("┃", "┗", "┏")):
             break
     return nodes

@@ -33,7 +33,9 @@ def _tree_log(scale: float = 1.0) -> str:
     """A log in the authors' format: per-frame lines, then the cumulative tree (last Global block wins)."""
 
     def node(prefix: str, name: str, seconds: float) -> str:
-        return f"{prefix} {name} : 0.001s (1.0%%)   {RED}{seconds * scale:.6f}s (10.0%%){END}"
+        seconds *= scale
+        text = f"{seconds:.6f}s" if seconds < 60 else f"{int(seconds // 60)}m {seconds % 60:.6f}s"  # as it prints
+        return f"{prefix} {name} : 0.001s (1.0%%)   {RED}{text} (10.0%%){END}"
 
     return "\n".join(
         [
@@ -78,6 +80,15 @@ def test_timing_tree_is_read_with_depths_from_the_last_global_block():
     assert names["Compute_Intersection_Free_StepSize_EE"] == (4, 1.5)
     assert names["linearSolve"] == (3, 3.0)
     assert parse_timing_tree("no tree here") == []
+
+
+def test_timer_values_over_a_minute_are_read_in_seconds():
+    tree = parse_timing_tree(_tree_log(scale=20.0))  # Global: 200 s, printed "3m 20.000000s"
+    assert tree[0] == (1, "Global", pytest.approx(200.0))
+    names = {name: sec for _, name, sec in tree}
+    assert names["linearSolve"] == pytest.approx(60.0) and names["implicitEuler_drdx_ipc"] == pytest.approx(180.0)
+    h = "┏ Global : 0.1s (100.0%%)   " + RED + "1h 2m 3.5s (100.0%%)" + END
+    assert parse_timing_tree(h)[0][2] == pytest.approx(3723.5)
 
 
 def test_reference_split_groups_the_solver_children_per_newton_iteration():
