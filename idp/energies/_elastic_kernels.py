@@ -332,11 +332,12 @@ def _hessian3(U, V, S, flip, twist, dmi, v, project, Ya, Sp, Q, lamS, L, R, Hr, 
         for j in range(3):
             Ya[a, j] = dmi[a, 0] * V[0, j] + dmi[a, 1] * V[1, j] + dmi[a, 2] * V[2, j]
     # clamped scaling block S⁺
-    if project and not _is_pd(S, 3):
+    # np.int64(3), not a literal 3: the _is_pd / symmetric_eigen_jacobi the general path compiles (one each)
+    if project and not _is_pd(S, np.int64(3)):
         for i in range(3):
             for j in range(3):
                 Sp[i, j] = S[i, j]
-        symmetric_eigen_jacobi(Sp, 3, Q, lamS)
+        symmetric_eigen_jacobi(Sp, np.int64(3), Q, lamS)
         for i in range(3):
             for j in range(3):
                 acc = 0.0
@@ -706,7 +707,7 @@ def element_terms(
             ch * CHUNK,
             min(m, (ch + 1) * CHUNK),
             no_ids,
-            0,
+            np.int64(0),  # not a literal 0: the same compiled _element_chunk as element_terms_scatter's
             x,
             elements,
             dm_inv,
@@ -777,8 +778,8 @@ def element_terms_scatter(
                 model,
                 param_a,
                 param_b,
-                True,
-                True,
+                np.bool_(True),  # not literal Trues: the same compiled _element_chunk as element_terms'
+                np.bool_(True),
                 project,
                 power,
                 e_buf,
