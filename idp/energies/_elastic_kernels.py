@@ -778,8 +778,9 @@ def element_terms_scatter(
                 model,
                 param_a,
                 param_b,
-                np.bool_(True),  # not literal Trues: the same compiled _element_chunk as element_terms'
-                np.bool_(True),
+                # not literal Trues: the same compiled _element_chunk as element_terms' (numba types np.bool_ as bool)
+                np.bool_(True),  # type: ignore[arg-type]
+                np.bool_(True),  # type: ignore[arg-type]
                 project,
                 power,
                 e_buf,
