@@ -44,7 +44,15 @@ class Terminated(KeyboardInterrupt):
 
 
 def _on_sigterm(signum: int, frame: object) -> None:
-    raise Terminated
+    from idp import interrupts
+
+    interrupts.request(Terminated())  # inside a run: at the next step or Newton iteration (idp.interrupts)
+
+
+def _on_sigint(signum: int, frame: object) -> None:
+    from idp import interrupts
+
+    interrupts.request(KeyboardInterrupt())
 
 
 def demo_scene_path() -> Path:
@@ -549,8 +557,12 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         previous_handler = signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # main() called from a thread other than the main one: SIGTERM keeps its handler
-        previous_handler = None
+        # Ctrl-C deferred the same way, unless SIGINT is ignored (a job of `idp batch`: the batch handles it)
+        previous_sigint = (
+            signal.signal(signal.SIGINT, _on_sigint) if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN else None
+        )
+    except ValueError:  # main() called from a thread other than the main one: the signals keep their handlers
+        previous_handler = previous_sigint = None
     try:
         if args.func is _cmd_check:  # reads meshes only: no kernels, and no numba import for nothing
             return int(args.func(args) or 0)
@@ -588,6 +600,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous_handler is not None:
             signal.signal(signal.SIGTERM, previous_handler)
+        if previous_sigint is not None:
+            signal.signal(signal.SIGINT, previous_sigint)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from idp import interrupts
 from idp._faults import kill_point
 from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
@@ -432,6 +433,7 @@ class StepSolver:
             )
 
         for it in range(1, cfg.max_iterations + 1):
+            interrupts.checkpoint()  # a SIGTERM or Ctrl-C recorded during the last iteration stops here
             res.iterations = it
             t = time.perf_counter()
             g_full, H = self._derivatives(x, x_prev, ev)

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from idp import interrupts
 from idp._faults import kill_point
 from idp.contact.certificate import Certifier
 from idp.errors import CertificateError, SolverError
@@ -265,114 +266,116 @@ def run_simulation(
     unmet_steps = sum(1 for r in previous if not r.get("dirichlet", {}).get("met", True))
     interrupt: KeyboardInterrupt | None = None
     try:
-        for step in range(start_step + 1, settings.steps + 1):
-            t_step = time.perf_counter()
-            system.set_rest_shape_for_step(step)
-            for cond in system.conditions:
-                cond.before_step(system, step, x)
-            if system.inertia_target is None:
-                x_new, res = solver.solve(x)
-            else:
-                x_new, res = solver.solve(system.inertia_target, start=x, target_at_rest=system.target_at_rest)
-            t_cert = time.perf_counter()
-            cert = certifier.check(x_new)
-            t_cert = time.perf_counter() - t_cert
-            max_move = float(np.abs(x_new - x).max(initial=0.0))
-            x = x_new
-            system.x = x
-            total_its += res.iterations
-            step_time = time.perf_counter() - t_step
-            fill = _fill_fraction(system, x)
-            timings = dict(res.timings)
-            timings["certificate"] = t_cert
-            timings["other"] = max(step_time - sum(timings.values()), 0.0)
-            rec: dict[str, Any] = {
-                "step": step,
-                "wall_time": step_time,
-                "newton_iterations": res.iterations,
-                "converged": res.converged,
-                "exact_minimiser": res.exact,
-                "hit_iteration_cap": res.hit_iteration_cap,
-                "hit_wall_limit": res.hit_wall_limit,
-                "line_search_failed": res.line_search_failed,
-                "newton_decrement": res.decrement,
-                "alphas": res.alphas,
-                "ccd_alphas": res.ccd_alphas,
-                "inversion_alphas": res.inversion_alphas,
-                "decrements": res.decrements,
-                "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
-                "pcg_iterations": res.pcg_iterations,
-                "exact_refactorizations": res.exact_refactorizations,
-                "contacts": res.num_contacts,
-                "kappa": res.kappa,
-                "energy": res.energy,
-                "elastic_energy": res.elastic_energy,
-                "barrier_energy": res.barrier_energy,
-                "min_distance": res.min_distance,
-                "max_displacement": max_move,
-                "fill_fraction": fill,
-                "certificate": cert.to_dict(),
-                "timings": timings,
-            }
-            bc_report = bc.report(x, system.meta.get("dhat")) if bc is not None and bc.active else None
-            if bc_report is not None:
-                rec["dirichlet"] = bc_report
-                if not bc_report["met"]:
-                    unmet_steps += 1
-            rec.update(_condition_reports(system, x))
-            records.append(rec)
-            stats.add_step(rec)
-            for cond in system.conditions:
-                if hasattr(cond, "after_step"):
-                    cond.after_step(system, step, x)
-            if not cert.ok:
-                uncertified += 1
-                raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
-            if not res.converged:
-                nonconverged += 1
-                msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
-                msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
-                if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
-                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                    _save_checkpoint(checkpoint, x, step, system)
-                    raise SolverError(msg)
-                log.warning(msg)
-            if bc_report is not None and not bc_report["met"]:
-                msg = (
-                    f"step {step} ended with Dirichlet targets unmet: max distance {bc_report['residual_max']:.3e} "
-                    f"(rms {bc_report['residual_rms']:.3e}), kappa_B {bc_report['kappa_B']:.3g}"
-                )
-                if settings.on_unmet_targets == "error":
-                    writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                    _save_checkpoint(checkpoint, x, step, system)
-                    raise SolverError(msg)
-                log.warning(msg)
-            last = step == settings.steps
-            stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
-            single = settings.stop_after_single_iteration and res.converged and res.iterations <= 1
-            if last or stationary or single or step % settings.write_every == 0:
-                writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-            _save_checkpoint(checkpoint, x, step, system)
-            if progress is not None:
-                post: dict[str, Any] = {"its": res.iterations, "contacts": res.num_contacts}
-                if bc_report is not None:
-                    post["BC"] = "met" if bc_report["met"] else f"UNMET {bc_report['residual_max']:.1e}"
-                if fill is not None:
-                    post["fill"] = f"{100 * fill:.2f}%"
-                elif rec.get("flow", {}).get("volume_ratio") is not None:
-                    post["volume"] = f"x{rec['flow']['volume_ratio']:.3f}"
+        with interrupts.deferred():  # a signal waits for the next step or Newton iteration (idp.interrupts)
+            for step in range(start_step + 1, settings.steps + 1):
+                interrupts.checkpoint()
+                t_step = time.perf_counter()
+                system.set_rest_shape_for_step(step)
+                for cond in system.conditions:
+                    cond.before_step(system, step, x)
+                if system.inertia_target is None:
+                    x_new, res = solver.solve(x)
                 else:
-                    post["E"] = f"{res.energy:.3e}"
-                progress.set_postfix(post)
-                progress.update(1)
-            if stationary:
-                if step % settings.write_every != 0:
+                    x_new, res = solver.solve(system.inertia_target, start=x, target_at_rest=system.target_at_rest)
+                t_cert = time.perf_counter()
+                cert = certifier.check(x_new)
+                t_cert = time.perf_counter() - t_cert
+                max_move = float(np.abs(x_new - x).max(initial=0.0))
+                x = x_new
+                system.x = x
+                total_its += res.iterations
+                step_time = time.perf_counter() - t_step
+                fill = _fill_fraction(system, x)
+                timings = dict(res.timings)
+                timings["certificate"] = t_cert
+                timings["other"] = max(step_time - sum(timings.values()), 0.0)
+                rec: dict[str, Any] = {
+                    "step": step,
+                    "wall_time": step_time,
+                    "newton_iterations": res.iterations,
+                    "converged": res.converged,
+                    "exact_minimiser": res.exact,
+                    "hit_iteration_cap": res.hit_iteration_cap,
+                    "hit_wall_limit": res.hit_wall_limit,
+                    "line_search_failed": res.line_search_failed,
+                    "newton_decrement": res.decrement,
+                    "alphas": res.alphas,
+                    "ccd_alphas": res.ccd_alphas,
+                    "inversion_alphas": res.inversion_alphas,
+                    "decrements": res.decrements,
+                    "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
+                    "pcg_iterations": res.pcg_iterations,
+                    "exact_refactorizations": res.exact_refactorizations,
+                    "contacts": res.num_contacts,
+                    "kappa": res.kappa,
+                    "energy": res.energy,
+                    "elastic_energy": res.elastic_energy,
+                    "barrier_energy": res.barrier_energy,
+                    "min_distance": res.min_distance,
+                    "max_displacement": max_move,
+                    "fill_fraction": fill,
+                    "certificate": cert.to_dict(),
+                    "timings": timings,
+                }
+                bc_report = bc.report(x, system.meta.get("dhat")) if bc is not None and bc.active else None
+                if bc_report is not None:
+                    rec["dirichlet"] = bc_report
+                    if not bc_report["met"]:
+                        unmet_steps += 1
+                rec.update(_condition_reports(system, x))
+                records.append(rec)
+                stats.add_step(rec)
+                for cond in system.conditions:
+                    if hasattr(cond, "after_step"):
+                        cond.after_step(system, step, x)
+                if not cert.ok:
+                    uncertified += 1
+                    raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
+                if not res.converged:
+                    nonconverged += 1
+                    msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
+                    msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
+                    if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
+                        writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
+                        _save_checkpoint(checkpoint, x, step, system)
+                        raise SolverError(msg)
+                    log.warning(msg)
+                if bc_report is not None and not bc_report["met"]:
+                    msg = (
+                        f"step {step} ended with Dirichlet targets unmet: max distance {bc_report['residual_max']:.3e} "
+                        f"(rms {bc_report['residual_rms']:.3e}), kappa_B {bc_report['kappa_B']:.3g}"
+                    )
+                    if settings.on_unmet_targets == "error":
+                        writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
+                        _save_checkpoint(checkpoint, x, step, system)
+                        raise SolverError(msg)
+                    log.warning(msg)
+                last = step == settings.steps
+                stationary = settings.stop_when_stationary and max_move < settings.stationary_tol
+                single = settings.stop_after_single_iteration and res.converged and res.iterations <= 1
+                if last or stationary or single or step % settings.write_every == 0:
                     writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                stopped_reason = f"stationary (max |dx| {max_move:.2e} < {settings.stationary_tol:g})"
-                break
-            if single:
-                stopped_reason = f"step {step} converged in {res.iterations} Newton iteration(s)"
-                break
+                _save_checkpoint(checkpoint, x, step, system)
+                if progress is not None:
+                    post: dict[str, Any] = {"its": res.iterations, "contacts": res.num_contacts}
+                    if bc_report is not None:
+                        post["BC"] = "met" if bc_report["met"] else f"UNMET {bc_report['residual_max']:.1e}"
+                    if fill is not None:
+                        post["fill"] = f"{100 * fill:.2f}%"
+                    elif rec.get("flow", {}).get("volume_ratio") is not None:
+                        post["volume"] = f"x{rec['flow']['volume_ratio']:.3f}"
+                    else:
+                        post["E"] = f"{res.energy:.3e}"
+                    progress.set_postfix(post)
+                    progress.update(1)
+                if stationary:
+                    if step % settings.write_every != 0:
+                        writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
+                    stopped_reason = f"stationary (max |dx| {max_move:.2e} < {settings.stationary_tol:g})"
+                    break
+                if single:
+                    stopped_reason = f"step {step} converged in {res.iterations} Newton iteration(s)"
+                    break
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM turned into one by the CLI: re-raised once on disk
         interrupt = exc
         stopped_reason = f"interrupted during step {step}"
