@@ -43,16 +43,26 @@ class Terminated(KeyboardInterrupt):
     is dropped, everything finished stays on disk, exit code 130, and ``--resume`` goes on."""
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
+def _on_signal(exc: KeyboardInterrupt, what: str) -> None:
+    """Inside a run: recorded, raised at the next step or Newton iteration (:mod:`idp.interrupts`); in a
+    batch's job loop: raised at once (the batch stops its jobs). Elsewhere (reading the scene, compiling kernels):
+    the process ends at once with exit 130 — nothing finished can be lost there (output is written atomically, as
+    for a kill), and an exception raised inside an import or numba's glue would surface as an unrelated error."""
     from idp import interrupts
 
-    interrupts.request(Terminated())  # inside a run: at the next step or Newton iteration (idp.interrupts)
+    if interrupts.handled():
+        interrupts.request(exc)
+        return
+    os.write(2, f"idp: {what}; finished steps are on disk (resume with --resume)\n".encode())
+    os._exit(EXIT_INTERRUPTED)
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    _on_signal(Terminated(), "terminated (SIGTERM)")
 
 
 def _on_sigint(signum: int, frame: object) -> None:
-    from idp import interrupts
-
-    interrupts.request(KeyboardInterrupt())
+    _on_signal(KeyboardInterrupt(), "interrupted")
 
 
 def demo_scene_path() -> Path:

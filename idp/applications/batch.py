@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from idp import interrupts
 from idp.errors import IdpError, MissingDependencyError, SceneError
 from idp.fs import check_output_dir, make_output_dir
 
@@ -466,12 +467,13 @@ def run_batch(
     t0 = time.perf_counter()
     interrupted = False
     try:
-        if serial:
-            _run_serial(todo, threads, n_retries, stop_file, records, bar)
-        else:
-            _run_dask(
-                todo, threads, n_retries, stop_file, records, bar, scheduler, n_workers, run_id, on_start, dashboard
-            )
+        with interrupts.immediate():  # a SIGTERM to `idp batch` raises here: the jobs are stopped below
+            if serial:
+                _run_serial(todo, threads, n_retries, stop_file, records, bar)
+            else:
+                _run_dask(
+                    todo, threads, n_retries, stop_file, records, bar, scheduler, n_workers, run_id, on_start, dashboard
+                )
     except KeyboardInterrupt:
         interrupted = True
     except BaseException as exc:  # e.g. the scheduler cannot be reached: said in batch.json too

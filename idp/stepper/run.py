@@ -265,8 +265,9 @@ def run_simulation(
     nonconverged = sum(1 for r in previous if not r.get("converged", True))
     unmet_steps = sum(1 for r in previous if not r.get("dirichlet", {}).get("met", True))
     interrupt: KeyboardInterrupt | None = None
-    try:
-        with interrupts.deferred():  # a signal waits for the next step or Newton iteration (idp.interrupts)
+    # a signal during the steps waits for the next step or Newton iteration; one during the summary is dropped
+    with interrupts.deferred():  # (the run is complete then) — see idp.interrupts
+        try:
             for step in range(start_step + 1, settings.steps + 1):
                 interrupts.checkpoint()
                 t_step = time.perf_counter()
@@ -376,57 +377,58 @@ def run_simulation(
                 if single:
                     stopped_reason = f"step {step} converged in {res.iterations} Newton iteration(s)"
                     break
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM turned into one by the CLI: re-raised once on disk
-        interrupt = exc
-        stopped_reason = f"interrupted during step {step}"
-        log.warning("interrupted: everything up to step %d is on disk", step - 1)
-        step -= 1
-    finally:
-        if progress is not None:
-            progress.close()
-        writer.close()
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM turned into one by the CLI: re-raised once on disk
+            interrupt = exc
+            stopped_reason = f"interrupted during step {step}"
+            log.warning("interrupted: everything up to step %d is on disk", step - 1)
+            step -= 1
+        finally:
+            if progress is not None:
+                progress.close()
+            writer.close()
 
-    wall = time.perf_counter() - t_run + sum(float(r.get("wall_time", 0.0)) for r in previous)
-    steps_done = len(records)  # the whole run's, also when it was resumed
-    summary = {
-        "steps_run": steps_done,
-        "last_step": records[-1]["step"] if records else start_step,
-        "stopped": stopped_reason,
-        "wall_time": wall,
-        "newton_iterations": total_its,
-        "nonconverged_steps": nonconverged,
-        "steps_with_unmet_targets": unmet_steps,
-        "uncertified_frames": uncertified,
-        "all_certified": uncertified == 0,
-        "fill_fraction": _fill_fraction(system, x),
-        **_condition_reports(system, x),
-        "dhat": system.meta.get("dhat"),
-        "initial_fill_fraction": fill0,
-        "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),
-        "timings": {
-            k: float(sum(r["timings"].get(k, 0.0) for r in records)) for k in (records[0]["timings"] if records else {})
-        },
-        "linear_solver": getattr(linear, "stats", {}),
-    }
-    if resumes:
-        summary["resumes"] = resumes
-    guard = getattr(linear, "memory_guard", None)
-    if guard is not None and guard.peak is not None:  # the largest step-memory estimate of this process
-        summary["memory_estimate"] = guard.peak.to_dict()
-    stats.set_summary(summary)
-    if settings.write_png and records:
-        try:
-            from idp.output.render import render_frames_png
+        wall = time.perf_counter() - t_run + sum(float(r.get("wall_time", 0.0)) for r in previous)
+        steps_done = len(records)  # the whole run's, also when it was resumed
+        summary = {
+            "steps_run": steps_done,
+            "last_step": records[-1]["step"] if records else start_step,
+            "stopped": stopped_reason,
+            "wall_time": wall,
+            "newton_iterations": total_its,
+            "nonconverged_steps": nonconverged,
+            "steps_with_unmet_targets": unmet_steps,
+            "uncertified_frames": uncertified,
+            "all_certified": uncertified == 0,
+            "fill_fraction": _fill_fraction(system, x),
+            **_condition_reports(system, x),
+            "dhat": system.meta.get("dhat"),
+            "initial_fill_fraction": fill0,
+            "min_distance": min((r["certificate"]["min_distance"] for r in records), default=math.inf),
+            "timings": {
+                k: float(sum(r["timings"].get(k, 0.0) for r in records))
+                for k in (records[0]["timings"] if records else {})
+            },
+            "linear_solver": getattr(linear, "stats", {}),
+        }
+        if resumes:
+            summary["resumes"] = resumes
+        guard = getattr(linear, "memory_guard", None)
+        if guard is not None and guard.peak is not None:  # the largest step-memory estimate of this process
+            summary["memory_estimate"] = guard.peak.to_dict()
+        stats.set_summary(summary)
+        if settings.write_png and records:
+            try:
+                from idp.output.render import render_frames_png
 
-            render_frames_png(
-                out / "frames.png",
-                system.parts,
-                [("step 0", x_initial), (f"step {summary['last_step']}", x)],
-                dim=system.dim,
-                up=settings.render_up,
-            )
-        except Exception as exc:  # a picture must never lose a finished run
-            log.warning("could not render frames.png: %s", exc)
+                render_frames_png(
+                    out / "frames.png",
+                    system.parts,
+                    [("step 0", x_initial), (f"step {summary['last_step']}", x)],
+                    dim=system.dim,
+                    up=settings.render_up,
+                )
+            except Exception as exc:  # a picture must never lose a finished run
+                log.warning("could not render frames.png: %s", exc)
     if interrupt is not None:
         raise interrupt
     return RunResult(out, steps_done, x, summary, records, system.parts)
