@@ -175,6 +175,21 @@ def test_sigterm_stops_cleanly_with_exit_130_and_the_run_resumes(tmp_path, refer
     _assert_same_as_reference(out, reference, resumes=1)
 
 
+@pytest.mark.parametrize("delay", [0.05, 0.4, 1.2, 2.5])
+def test_sigterm_at_any_moment_exits_130_without_a_traceback(tmp_path, delay):
+    """During start-up (imports, scene reading, kernel loads) or during the steps — before issue 16's fix a
+    SIGTERM could surface inside numba's or pydantic's glue as a SystemError, a RuntimeError or a crash."""
+    cmd = [sys.executable, "-m", "idp", "run", str(demo_scene_path()), "-o", str(tmp_path / "out"), "-q"]  # 80 steps
+    proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    if proc.returncode == 0:
+        pytest.skip("the run finished before SIGTERM arrived")
+    assert proc.returncode == 130, err
+    assert b"Traceback" not in err and b"terminated (SIGTERM)" in err, err
+
+
 def test_a_resume_with_a_changed_scene_is_refused_naming_the_keys_unless_forced(tmp_path):
     text = demo_scene_path().read_text()
     original, changed = tmp_path / "scene.toml", tmp_path / "changed.toml"
