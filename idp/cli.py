@@ -550,6 +550,9 @@ def main(argv: list[str] | None = None) -> int:
 
         watch_parent_from_env()
     args = build_parser().parse_args(argv)
+    from idp._exit import freeze_heap_at_exit
+
+    freeze_heap_at_exit()  # the interpreter's shutdown need not walk the whole heap (idp._exit)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="idp: %(levelname)s: %(message)s"
     )

@@ -395,4 +395,7 @@ if __name__ == "__main__":
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--steps", type=int)
     a = p.parse_args()
+    from idp._exit import freeze_heap_at_exit
+
+    freeze_heap_at_exit()  # as the CLI does: the whole-process wall time is what `idp run` would take
     run_child(a.child, Path(a.output), a.steps)
