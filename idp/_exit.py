@@ -4,10 +4,11 @@ When the interpreter shuts down it runs full garbage collections while it tears 
 they walk every object numba, scipy and ipctk left on the heap (about 145K), which cost 0.3–0.4 s of a 6 s
 bunny_700 run on the 2-core VM (``perf``: ``gc_collect_main``, ``visit_decref`` in the last 5 % of the process).
 Freezing the heap at exit moves those objects out of the collector's generations, so the shutdown
-collections only see what the teardown itself frees. Nothing is skipped: atexit handlers, ``logging``'s flush
-and every file's close still run; objects in reference cycles are simply not collected before the process ends,
-which frees their memory anyway. Libraries calling idp keep their own interpreter's behaviour: only the entry
-points of idp's processes call :func:`freeze_heap_at_exit`.
+collections only see what the teardown itself frees. Atexit handlers, ``logging``'s flush and the closing of
+files still run; what is skipped is collecting reference cycles that were still alive at exit (their memory goes
+with the process; CPython does not promise to run their finalizers at shutdown either).
+Libraries calling idp keep their own interpreter's behaviour: only the entry points of idp's processes call
+:func:`freeze_heap_at_exit`.
 """
 
 from __future__ import annotations
