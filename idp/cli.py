@@ -118,11 +118,13 @@ def _with_solver_limits(scene, args):
 
 def _cmd_run(args) -> int:
     _set_threads(args.threads)
+    from idp._heap import freeze_startup_heap
     from idp.api import simulate
     from idp.scene.load import load_scene
 
     scene = _with_solver_limits(load_scene(args.scene), args)
     out = args.output or scene.output.dir
+    freeze_startup_heap()  # one run per process: its collections need not walk the imported modules (idp._heap)
     result = simulate(
         scene,
         out,
@@ -320,11 +322,13 @@ def _cmd_check(args) -> int:
 
 def _cmd_demo(args) -> int:
     _set_threads(args.threads)
+    from idp._heap import freeze_startup_heap
     from idp.api import simulate
     from idp.scene.load import load_scene
 
     scene = load_scene(demo_scene_path())
     out = Path(args.output)
+    freeze_startup_heap()  # one run per process (idp._heap)
     result = simulate(scene, out, steps=args.steps, progress=not args.quiet)
     return _finish(result, out)
 
@@ -560,6 +564,10 @@ def main(argv: list[str] | None = None) -> int:
 
         watch_parent_from_env()
     args = build_parser().parse_args(argv)
+    if argv is None:  # the process's own command line: its shutdown need not walk the whole heap (idp._heap)
+        from idp._heap import freeze_heap_at_exit
+
+        freeze_heap_at_exit()
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="idp: %(levelname)s: %(message)s"
     )

@@ -66,12 +66,17 @@ def scene_table() -> dict:
     return table
 
 
-def run_child(name: str, out: Path, steps: int | None) -> dict:
-    """Run one scene in this process and write OUT/NAME.json."""
+def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> dict:
+    """Run one scene in this process and write OUT/NAME.json. ``freeze``: the process runs only this scene
+    (the bench's child), so the imported modules are frozen for the collector first, as `idp run` does."""
     from idp.api import simulate
 
     factory, _ = scene_table()[name]
     scene = factory()
+    if freeze:
+        from idp._heap import freeze_startup_heap
+
+        freeze_startup_heap()  # as `idp run` does
     t0 = time.perf_counter()
     res = simulate(scene, out / name, steps=steps, progress=False)
     wall = time.perf_counter() - t0
@@ -395,4 +400,7 @@ if __name__ == "__main__":
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--steps", type=int)
     a = p.parse_args()
-    run_child(a.child, Path(a.output), a.steps)
+    from idp._heap import freeze_heap_at_exit
+
+    freeze_heap_at_exit()  # as the CLI does: the whole-process wall time is what `idp run` would take
+    run_child(a.child, Path(a.output), a.steps, freeze=True)

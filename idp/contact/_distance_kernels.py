@@ -3,7 +3,13 @@ closest-feature classification, the edge-edge mollifier and the log barrier.
 
 Everything works on *squared* Euclidean distances (as ipctk does). Points are float64
 arrays of shape (3,); a stencil ``X`` is a (k, 3) array whose rows are the stencil
-vertices in the order listed below. Gradients and Hessians are taken w.r.t. the flattened
+vertices in the order listed below (the classifications take the whole (4, 3) pair, point and
+triangle or edge and edge, and read it in place: no row views in the hot loops, each of which
+costs numba two atomic reference-count updates). For the same reason the helpers that take arrays have no
+``break`` in a loop: numba increfs array arguments on entry and decrefs them on exit, and its reference-count
+pruning removes those pairs in functions without loop breaks (checked on the LLVM IR) but not in a loop with a
+``break``; with 2 threads these atomic updates took half the time of the CCD bounds and of the candidate
+classification on bunny_700. Gradients and Hessians are taken w.r.t. the flattened
 stencil in vertex-major order ``[x0, y0, z0, x1, y1, z1, ...]`` (length 3k).
 
 Distance kinds (stencil, k rows)
@@ -414,17 +420,21 @@ def sq_distance_hessian(kind, X, g, H):
 
 
 @njit(cache=True, error_model="numpy")
-def gather_stencil(local_ids, Y, X):
-    """X[i] = Y[local_ids[i]] for the non-negative ids (a PT_LOCAL / EE_LOCAL row); return the count."""
+def gather_stencil(local_ids, row, Y, X):
+    """X[i] = Y[local_ids[row, i]] for the non-negative ids of that row (of PT_LOCAL / EE_LOCAL or a collision
+    set's local ids); return the count. The table and its row, not the row view ``local_ids[row]``: a view costs
+    two atomic reference-count updates, on a cache line the threads share when the table is shared."""
     k = 0
-    for i in range(local_ids.shape[0]):
-        v = local_ids[i]
+    live = True  # up to the first negative id (no ``break``: see the module docstring)
+    for i in range(local_ids.shape[1]):
+        v = local_ids[row, i]
         if v < 0:
-            break
-        X[k, 0] = Y[v, 0]
-        X[k, 1] = Y[v, 1]
-        X[k, 2] = Y[v, 2]
-        k += 1
+            live = False
+        if live:
+            X[k, 0] = Y[v, 0]
+            X[k, 1] = Y[v, 1]
+            X[k, 2] = Y[v, 2]
+            k += 1
     return k
 
 
@@ -434,14 +444,15 @@ def gather_stencil(local_ids, Y, X):
 
 
 @njit(cache=True, error_model="numpy")
-def _edge_slab(p, ti, tj, n0, n1, n2):
-    """(s, |e|^2, h) of p w.r.t. edge ti->tj: s = (p-ti).e, h = (p-ti).(e x n) (> 0: outer side)."""
-    e0 = tj[0] - ti[0]
-    e1 = tj[1] - ti[1]
-    e2 = tj[2] - ti[2]
-    r0 = p[0] - ti[0]
-    r1 = p[1] - ti[1]
-    r2 = p[2] - ti[2]
+def _edge_slab(X, ip, ii, ij, n0, n1, n2):
+    """(s, |e|^2, h) of row ip w.r.t. the edge of rows ii -> ij of the stencil X: s = (p-ti).e,
+    h = (p-ti).(e x n) (> 0: outer side)."""
+    e0 = X[ij, 0] - X[ii, 0]
+    e1 = X[ij, 1] - X[ii, 1]
+    e2 = X[ij, 2] - X[ii, 2]
+    r0 = X[ip, 0] - X[ii, 0]
+    r1 = X[ip, 1] - X[ii, 1]
+    r2 = X[ip, 2] - X[ii, 2]
     s = r0 * e0 + r1 * e1 + r2 * e2
     ee = e0 * e0 + e1 * e1 + e2 * e2
     h = r0 * (e1 * n2 - e2 * n1) + r1 * (e2 * n0 - e0 * n2) + r2 * (e0 * n1 - e1 * n0)
@@ -457,33 +468,39 @@ def _sq_dist_points(p, q):
 
 
 @njit(cache=True, error_model="numpy")
-def _degenerate_triangle_type(p, t0, t1, t2):
-    """Collinear triangle: closest of the three segments (point-segment classification)."""
+def _sq_dist_rows(X, i, j):
+    """Squared distance between rows i and j of X."""
+    a = X[i, 0] - X[j, 0]
+    b = X[i, 1] - X[j, 1]
+    c = X[i, 2] - X[j, 2]
+    return a * a + b * b + c * c
+
+
+@njit(cache=True, error_model="numpy")
+def _degenerate_triangle_type(X):
+    """Collinear triangle (rows 1–3 of the stencil X, the point row 0): closest of the three segments
+    (point-segment classification)."""
     best = np.inf
     best_type = P_T0
     for k in range(3):
-        if k == 0:
-            a, b = t0, t1
-        elif k == 1:
-            a, b = t1, t2
-        else:
-            a, b = t2, t0
-        e0 = b[0] - a[0]
-        e1 = b[1] - a[1]
-        e2 = b[2] - a[2]
+        ia = 1 + k  # the edge t_k -> t_(k+1)
+        ib = 1 + (k + 1) % 3
+        e0 = X[ib, 0] - X[ia, 0]
+        e1 = X[ib, 1] - X[ia, 1]
+        e2 = X[ib, 2] - X[ia, 2]
         ee = e0 * e0 + e1 * e1 + e2 * e2
-        s = (p[0] - a[0]) * e0 + (p[1] - a[1]) * e1 + (p[2] - a[2]) * e2
+        s = (X[0, 0] - X[ia, 0]) * e0 + (X[0, 1] - X[ia, 1]) * e1 + (X[0, 2] - X[ia, 2]) * e2
         if s <= 0.0 or ee == 0.0:
-            dist = _sq_dist_points(p, a)
+            dist = _sq_dist_rows(X, 0, ia)
             typ = k  # vertex a of edge k is t_k
         elif s >= ee:
-            dist = _sq_dist_points(p, b)
+            dist = _sq_dist_rows(X, 0, ib)
             typ = (k + 1) % 3
         else:
             t = s / ee
-            q0 = p[0] - a[0] - t * e0
-            q1 = p[1] - a[1] - t * e1
-            q2 = p[2] - a[2] - t * e2
+            q0 = X[0, 0] - X[ia, 0] - t * e0
+            q1 = X[0, 1] - X[ia, 1] - t * e1
+            q2 = X[0, 2] - X[ia, 2] - t * e2
             dist = q0 * q0 + q1 * q1 + q2 * q2
             typ = P_E0 + k
         if dist < best:
@@ -493,22 +510,24 @@ def _degenerate_triangle_type(p, t0, t1, t2):
 
 
 @njit(cache=True, error_model="numpy")
-def point_triangle_type(p, t0, t1, t2):
-    """Closest feature of triangle (t0, t1, t2) to p, as ipctk.PointTriangleDistanceType."""
-    a0 = t1[0] - t0[0]
-    a1 = t1[1] - t0[1]
-    a2 = t1[2] - t0[2]
-    b0 = t2[0] - t0[0]
-    b1 = t2[1] - t0[1]
-    b2 = t2[2] - t0[2]
+def point_triangle_type(X):
+    """Closest feature of the triangle (rows 1, 2, 3 of the (4, 3) stencil X: t0, t1, t2) to the point (row 0),
+    as ipctk.PointTriangleDistanceType. The stencil is read in place: row views (``X[0]``) passed to a call cost
+    two atomic reference-count updates each in numba, which took half the time of the CCD bounds."""
+    a0 = X[2, 0] - X[1, 0]
+    a1 = X[2, 1] - X[1, 1]
+    a2 = X[2, 2] - X[1, 2]
+    b0 = X[3, 0] - X[1, 0]
+    b1 = X[3, 1] - X[1, 1]
+    b2 = X[3, 2] - X[1, 2]
     n0 = a1 * b2 - a2 * b1
     n1 = a2 * b0 - a0 * b2
     n2 = a0 * b1 - a1 * b0
     if n0 == 0.0 and n1 == 0.0 and n2 == 0.0:
-        return _degenerate_triangle_type(p, t0, t1, t2)
-    s0, ee0, h0 = _edge_slab(p, t0, t1, n0, n1, n2)
-    s1, ee1, h1 = _edge_slab(p, t1, t2, n0, n1, n2)
-    s2, ee2, h2 = _edge_slab(p, t2, t0, n0, n1, n2)
+        return _degenerate_triangle_type(X)
+    s0, ee0, h0 = _edge_slab(X, 0, 1, 2, n0, n1, n2)
+    s1, ee1, h1 = _edge_slab(X, 0, 2, 3, n0, n1, n2)
+    s2, ee2, h2 = _edge_slab(X, 0, 3, 1, n0, n1, n2)
     # on the outer side of an edge with the projection inside it: that edge is closest
     # (the triangle lies in the inner half-plane of every edge)
     if h0 > 0.0 and 0.0 < s0 and s0 < ee0:
@@ -527,9 +546,9 @@ def point_triangle_type(p, t0, t1, t2):
     if s2 <= 0.0 and s1 >= ee1:
         return P_T2
     # rounding left no region: nearest vertex
-    d0 = _sq_dist_points(p, t0)
-    d1 = _sq_dist_points(p, t1)
-    d2 = _sq_dist_points(p, t2)
+    d0 = _sq_dist_rows(X, 0, 1)
+    d1 = _sq_dist_rows(X, 0, 2)
+    d2 = _sq_dist_rows(X, 0, 3)
     if d0 <= d1 and d0 <= d2:
         return P_T0
     if d1 <= d2:
@@ -538,14 +557,15 @@ def point_triangle_type(p, t0, t1, t2):
 
 
 @njit(cache=True, error_model="numpy")
-def _edge_edge_parallel_type(ea0, ea1, eb0, eb1):
-    """Parallel edges: project eb0, eb1 onto edge A (parameters alpha, beta; A = [0, 1])."""
-    u0 = ea1[0] - ea0[0]
-    u1 = ea1[1] - ea0[1]
-    u2 = ea1[2] - ea0[2]
+def _edge_edge_parallel_type(X):
+    """Parallel edges (rows 0, 1: edge A; rows 2, 3: edge B of the stencil X): project eb0, eb1 onto edge A
+    (parameters alpha, beta; A = [0, 1])."""
+    u0 = X[1, 0] - X[0, 0]
+    u1 = X[1, 1] - X[0, 1]
+    u2 = X[1, 2] - X[0, 2]
     a = u0 * u0 + u1 * u1 + u2 * u2
-    alpha = ((eb0[0] - ea0[0]) * u0 + (eb0[1] - ea0[1]) * u1 + (eb0[2] - ea0[2]) * u2) / a
-    beta = ((eb1[0] - ea0[0]) * u0 + (eb1[1] - ea0[1]) * u1 + (eb1[2] - ea0[2]) * u2) / a
+    alpha = ((X[2, 0] - X[0, 0]) * u0 + (X[2, 1] - X[0, 1]) * u1 + (X[2, 2] - X[0, 2]) * u2) / a
+    beta = ((X[3, 0] - X[0, 0]) * u0 + (X[3, 1] - X[0, 1]) * u1 + (X[3, 2] - X[0, 2]) * u2) / a
     if 0.0 <= alpha and alpha <= 1.0:
         return EA_EB0
     if 0.0 <= beta and beta <= 1.0:
@@ -559,17 +579,18 @@ def _edge_edge_parallel_type(ea0, ea1, eb0, eb1):
 
 
 @njit(cache=True, error_model="numpy")
-def edge_edge_type(ea0, ea1, eb0, eb1):
-    """Closest feature pair of segments (ea0, ea1), (eb0, eb1), as ipctk.EdgeEdgeDistanceType."""
-    u0 = ea1[0] - ea0[0]
-    u1 = ea1[1] - ea0[1]
-    u2 = ea1[2] - ea0[2]
-    v0 = eb1[0] - eb0[0]
-    v1 = eb1[1] - eb0[1]
-    v2 = eb1[2] - eb0[2]
-    w0 = ea0[0] - eb0[0]
-    w1 = ea0[1] - eb0[1]
-    w2 = ea0[2] - eb0[2]
+def edge_edge_type(X):
+    """Closest feature pair of the segments of rows (0, 1) and (2, 3) of the (4, 3) stencil X (ea0, ea1, eb0,
+    eb1), as ipctk.EdgeEdgeDistanceType; the stencil is read in place (see :func:`point_triangle_type`)."""
+    u0 = X[1, 0] - X[0, 0]
+    u1 = X[1, 1] - X[0, 1]
+    u2 = X[1, 2] - X[0, 2]
+    v0 = X[3, 0] - X[2, 0]
+    v1 = X[3, 1] - X[2, 1]
+    v2 = X[3, 2] - X[2, 2]
+    w0 = X[0, 0] - X[2, 0]
+    w1 = X[0, 1] - X[2, 1]
+    w2 = X[0, 2] - X[2, 2]
     a = u0 * u0 + u1 * u1 + u2 * u2
     b = u0 * v0 + u1 * v1 + u2 * v2
     c = v0 * v0 + v1 * v1 + v2 * v2
@@ -585,7 +606,7 @@ def edge_edge_type(ea0, ea1, eb0, eb1):
     n1 = u2 * v0 - u0 * v2
     n2 = u0 * v1 - u1 * v0
     if n0 * n0 + n1 * n1 + n2 * n2 < EE_PARALLEL_TOL * a * c:
-        return _edge_edge_parallel_type(ea0, ea1, eb0, eb1)
+        return _edge_edge_parallel_type(X)
     # f(s, t) = |w + s u - t v|^2 is strictly convex. Line optimum: s* = sN / D, t* = tN / D
     # with D = ac - b^2, sN = be - cd, tN = ae - bd, evaluated through Lagrange's identity as
     # D = n.n, sN = n.(v x w), tN = n.(u x w) (n = u x v): for nearly parallel edges the

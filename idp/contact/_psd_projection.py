@@ -205,12 +205,14 @@ def _tridiagonal_qr(work: np.ndarray, k: int) -> int:
     hi = k - 1
     while hi > 0:
         lo = hi
-        while lo > 0:
+        split = False  # a condition, not ``break`` (numba's reference-count pruning, see _distance_kernels)
+        while lo > 0 and not split:
             ee = abs(work[_E, lo - 1])
             if ee <= _EPS * (abs(work[_D, lo - 1]) + abs(work[_D, lo])) or ee <= 1e-16:
                 work[_E, lo - 1] = 0.0
-                break
-            lo -= 1
+                split = True
+            else:
+                lo -= 1
         if lo == hi:
             hi -= 1
             continue

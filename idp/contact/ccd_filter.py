@@ -61,48 +61,45 @@ FIRST_BATCH = 256
 _CHUNK = 512
 
 
-@njit(cache=True, error_model="numpy")
-def _pair_ids(i, fv, ee, faces, edges, ids):  # pragma: no cover - compiled
-    """ids ← the pair's four vertices (point, triangle or edge, edge); returns True for point–triangle."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _pair_vertex(i, r, fv, ee, faces, edges):  # pragma: no cover - compiled
+    """Vertex r (0–3) of candidate i: point, triangle (face–vertex candidates, the first fv.shape[0]) or edge,
+    edge. Meant to be inlined (``inline="always"``): the candidate loops below then pass no shared array to a
+    compiled call, each of which would cost two atomic reference-count updates on a cache line both threads use
+    (more than half the time of :func:`_bounds` on 2 threads before)."""
     nf = fv.shape[0]
     if i < nf:
-        ids[0] = fv[i, 1]
-        ids[1] = faces[fv[i, 0], 0]
-        ids[2] = faces[fv[i, 0], 1]
-        ids[3] = faces[fv[i, 0], 2]
-        return True
-    ids[0] = edges[ee[i - nf, 0], 0]
-    ids[1] = edges[ee[i - nf, 0], 1]
-    ids[2] = edges[ee[i - nf, 1], 0]
-    ids[3] = edges[ee[i - nf, 1], 1]
-    return False
+        return fv[i, 1] if r == 0 else faces[fv[i, 0], r - 1]
+    return edges[ee[i - nf, r // 2], r % 2]
 
 
 @njit(cache=True, error_model="numpy")
 def _distance(X, S, point_triangle):  # pragma: no cover - compiled
     if point_triangle:
-        t = point_triangle_type(X[0], X[1], X[2], X[3])
-        k = gather_stencil(PT_LOCAL[t], X, S)
-        return np.sqrt(max(sq_distance(PT_KIND[t], S[:k]), 0.0))
-    t = edge_edge_type(X[0], X[1], X[2], X[3])
-    k = gather_stencil(EE_LOCAL[t], X, S)
-    return np.sqrt(max(sq_distance(EE_KIND[t], S[:k]), 0.0))
+        t = point_triangle_type(X)
+        gather_stencil(PT_LOCAL, t, X, S)
+        return np.sqrt(max(sq_distance(PT_KIND[t], S), 0.0))
+    t = edge_edge_type(X)
+    gather_stencil(EE_LOCAL, t, X, S)
+    return np.sqrt(max(sq_distance(EE_KIND[t], S), 0.0))
 
 
 @njit(cache=True, error_model="numpy")
 def _bounds_range(i0, i1, V0, V1, faces, edges, fv, ee, keep, advances, dist, speed, first):  # pragma: no cover
     X = np.empty((4, 3))
+    X0 = np.empty((4, 3))  # the pair's vertices at the start of the move
     S = np.empty((4, 3))
     D = np.empty((4, 3))
-    ids = np.empty(4, np.int64)
+    nf = fv.shape[0]
     for i in range(i0, i1):
-        pt = _pair_ids(i, fv, ee, faces, edges, ids)
+        pt = i < nf
         scale = 0.0
         check = 0.0  # NaN or inf unless every coordinate is finite
         for r in range(4):
-            v = ids[r]
+            v = _pair_vertex(i, r, fv, ee, faces, edges)
             for c in range(3):
                 X[r, c] = V0[v, c]
+                X0[r, c] = V0[v, c]
                 D[r, c] = V1[v, c] - V0[v, c]
                 scale = max(scale, abs(X[r, c]) + abs(D[r, c]))
                 check += X[r, c] * 0.0 + D[r, c] * 0.0
@@ -132,25 +129,29 @@ def _bounds_range(i0, i1, V0, V1, faces, edges, fv, ee, keep, advances, dist, sp
         slack = 64.0 * 2.220446049250313e-16 * scale
         target = keep * d0
         t = (d0 - slack - target) / m
-        first[i] = _advance(V0, ids, D, X, S, pt, t, target, slack, m, advances, 1.0)
+        first[i] = _advance(X0, D, X, S, pt, t, target, slack, m, advances, 1.0)
 
 
 @njit(cache=True, error_model="numpy")
-def _advance(V0, ids, D, X, S, pt, t, target, slack, m, advances, limit):  # pragma: no cover - compiled
-    """Conservative advancement of one pair (vertices ``ids``, moves ``D``) from fraction t, where its gap is
-    known to stay above ``target`` on [0, t]: at most ``advances`` exact distance evaluations, stopping at
-    ``limit``; returns the new t (≥ 0)."""
-    for _ in range(advances):
+def _advance(X0, D, X, S, pt, t, target, slack, m, advances, limit):  # pragma: no cover - compiled
+    """Conservative advancement of one pair (start positions ``X0``, moves ``D``; X, S scratch, all (4, 3) and the
+    calling thread's own) from fraction t, where its gap is known to stay above ``target`` on [0, t]: at most
+    ``advances`` exact distance evaluations, stopping at ``limit``; returns the new t (≥ 0)."""
+    it = 0
+    going = True  # a condition, not ``break``: see idp.contact._distance_kernels' docstring
+    while going and it < advances:
         if not (0.0 < t < limit):
-            break
-        for r in range(4):
-            v = ids[r]
-            for c in range(3):
-                X[r, c] = V0[v, c] + t * D[r, c]
-        step = (_distance(X, S, pt) - slack - target) / m
-        if not step > 0.0:
-            break
-        t += step
+            going = False
+        else:
+            for r in range(4):
+                for c in range(3):
+                    X[r, c] = X0[r, c] + t * D[r, c]
+            step = (_distance(X, S, pt) - slack - target) / m
+            if step > 0.0:
+                t += step
+            else:
+                going = False
+        it += 1
     return max(t, 0.0)
 
 
@@ -159,24 +160,26 @@ def _refine_range(
     j0, j1, idx, V0, V1, faces, edges, fv, ee, keep, advances, limit, dist, speed, first
 ):  # pragma: no cover
     X = np.empty((4, 3))
+    X0 = np.empty((4, 3))
     S = np.empty((4, 3))
     D = np.empty((4, 3))
-    ids = np.empty(4, np.int64)
+    nf = fv.shape[0]
     for j in range(j0, j1):
         i = idx[j]
         t = first[i]
         m = speed[i]
         if not (0.0 < t < limit) or not (m < np.inf):
             continue
-        pt = _pair_ids(i, fv, ee, faces, edges, ids)
+        pt = i < nf
         scale = 0.0
         for r in range(4):
-            v = ids[r]
+            v = _pair_vertex(i, r, fv, ee, faces, edges)
             for c in range(3):
+                X0[r, c] = V0[v, c]
                 D[r, c] = V1[v, c] - V0[v, c]
                 scale = max(scale, abs(V0[v, c]) + abs(D[r, c]))
         slack = 64.0 * 2.220446049250313e-16 * scale
-        first[i] = _advance(V0, ids, D, X, S, pt, t, keep * dist[i], slack, m, advances, limit)
+        first[i] = _advance(X0, D, X, S, pt, t, keep * dist[i], slack, m, advances, limit)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

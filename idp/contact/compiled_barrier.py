@@ -65,12 +65,13 @@ CHUNK = 64
 
 
 @njit(cache=True, error_model="numpy")
-def _put_row(x, V, v):  # pragma: no cover - compiled
-    """x[:] = V[v] for 3-vectors, element by element: the array assignment ``X[i] = V[v]`` compiles numba's
-    shape-mismatch error path (string formatting, about 2 s of compile time in every process that compiles it)."""
-    x[0] = V[v, 0]
-    x[1] = V[v, 1]
-    x[2] = V[v, 2]
+def _put_row(X, r, V, v):  # pragma: no cover - compiled
+    """X[r] = V[v] for 3-vectors, element by element: the array assignment ``X[i] = V[v]`` compiles numba's
+    shape-mismatch error path (string formatting, about 2 s of compile time in every process that compiles it),
+    and a row view ``X[r]`` passed to a call costs two atomic reference-count updates."""
+    X[r, 0] = V[v, 0]
+    X[r, 1] = V[v, 1]
+    X[r, 2] = V[v, 2]
 
 
 @njit(cache=True, error_model="numpy")
@@ -83,25 +84,25 @@ def _classify_range(i0, i1, V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
     for i in range(i0, i1):
         if i < nf:
             f, v = fv[i, 0], fv[i, 1]
-            _put_row(X[0], V, v)
-            _put_row(X[1], V, faces[f, 0])
-            _put_row(X[2], V, faces[f, 1])
-            _put_row(X[3], V, faces[f, 2])
-            t = point_triangle_type(X[0], X[1], X[2], X[3])
-            k = gather_stencil(PT_LOCAL[t], X, S)
+            _put_row(X, 0, V, v)
+            _put_row(X, 1, V, faces[f, 0])
+            _put_row(X, 2, V, faces[f, 1])
+            _put_row(X, 3, V, faces[f, 2])
+            t = point_triangle_type(X)
+            gather_stencil(PT_LOCAL, t, X, S)
             ctype[i] = t
-            sqd[i] = sq_distance(PT_KIND[t], S[:k])
+            sqd[i] = sq_distance(PT_KIND[t], S)  # reads only the rows of its kind
             eps[i] = 0.0
         else:
             ea, eb = ee[i - nf, 0], ee[i - nf, 1]
-            _put_row(X[0], V, edges[ea, 0])
-            _put_row(X[1], V, edges[ea, 1])
-            _put_row(X[2], V, edges[eb, 0])
-            _put_row(X[3], V, edges[eb, 1])
-            t = edge_edge_type(X[0], X[1], X[2], X[3])
-            k = gather_stencil(EE_LOCAL[t], X, S)
+            _put_row(X, 0, V, edges[ea, 0])
+            _put_row(X, 1, V, edges[ea, 1])
+            _put_row(X, 2, V, edges[eb, 0])
+            _put_row(X, 3, V, edges[eb, 1])
+            t = edge_edge_type(X)
+            gather_stencil(EE_LOCAL, t, X, S)
             ctype[i] = t
-            sqd[i] = sq_distance(EE_KIND[t], S[:k])
+            sqd[i] = sq_distance(EE_KIND[t], S)
             threshold = EE_MOLLIFIER_FACTOR * rest_len2[ea] * rest_len2[eb]
             _a0, _a1, _a2, _b0, _b1, _b2, cx, cy, cz = edge_cross(X, 0, 1, 2, 3)
             eps[i] = threshold if cx * cx + cy * cy + cz * cz < threshold else 0.0
@@ -263,9 +264,9 @@ def _gather(V, verts, local, c, X, S):  # pragma: no cover - compiled
     """X ← the collision's vertices (returns their count n), S ← its distance stencil (returns k)."""
     n = 0
     while n < 4 and verts[c, n] >= 0:
-        _put_row(X[n], V, verts[c, n])
+        _put_row(X, n, V, verts[c, n])
         n += 1
-    return n, gather_stencil(local[c], X, S)
+    return n, gather_stencil(local, c, X, S)
 
 
 @njit(cache=True, error_model="numpy")
@@ -273,8 +274,8 @@ def _values_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  # pr
     X = np.empty((4, 3))
     S4 = np.empty((4, 3))
     for c in range(c0, c1):
-        _n, k = _gather(V, verts, local, c, X, S4)
-        d = sq_distance(np.int64(kind[c]), S4[:k])  # int64 as in _classify_range: one compiled sq_distance
+        _gather(V, verts, local, c, X, S4)
+        d = sq_distance(np.int64(kind[c]), S4)  # int64 as in _classify_range: one compiled sq_distance
         b = barrier(d, dhat2)
         if eps[c] > 0.0:
             b *= ee_mollifier(X, eps[c])
@@ -297,7 +298,7 @@ def _gradients_chunk(c0, c1, V, verts, kind, local, eps, weight, dhat2, out):  #
     gm = np.empty(12)
     for c in range(c0, c1):
         _n, k = _gather(V, verts, local, c, X, S4)
-        d = sq_distance_gradient(kind[c], S4[:k], gd)
+        d = sq_distance_gradient(kind[c], S4, gd)
         b1 = barrier_first_derivative(d, dhat2)
         for j in range(12):
             out[c, j] = 0.0
@@ -338,7 +339,7 @@ def _hessian_chunk(
     keep = np.empty(4, np.int64)
     for c in range(c0, c1):
         n, k = _gather(V, verts, local, c, X, S4)
-        d = sq_distance_hessian(kind[c], S4[:k], gd, Hd)
+        d = sq_distance_hessian(kind[c], S4, gd, Hd)
         b = barrier(d, dhat2)
         b1 = barrier_first_derivative(d, dhat2)
         b2 = barrier_second_derivative(d, dhat2)

@@ -45,12 +45,12 @@ def _pair_distance(X, S, is_point_triangle):  # pragma: no cover - compiled
     """Exact (closest-feature) distance of the pair X: point X[0] vs triangle X[1:4], or edge X[0:2]
     vs edge X[2:4]."""
     if is_point_triangle:
-        t = point_triangle_type(X[0], X[1], X[2], X[3])
-        k = gather_stencil(PT_LOCAL[t], X, S)
-        return np.sqrt(max(sq_distance(PT_KIND[t], S[:k]), 0.0))
-    t = edge_edge_type(X[0], X[1], X[2], X[3])
-    k = gather_stencil(EE_LOCAL[t], X, S)
-    return np.sqrt(max(sq_distance(EE_KIND[t], S[:k]), 0.0))
+        t = point_triangle_type(X)
+        gather_stencil(PT_LOCAL, t, X, S)
+        return np.sqrt(max(sq_distance(PT_KIND[t], S), 0.0))
+    t = edge_edge_type(X)
+    gather_stencil(EE_LOCAL, t, X, S)
+    return np.sqrt(max(sq_distance(EE_KIND[t], S), 0.0))
 
 
 @njit(cache=True, error_model="numpy")

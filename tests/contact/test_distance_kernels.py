@@ -141,7 +141,7 @@ def stencil_value_and_gradient(kind_table, local_table, t, Y):
     """Distance of type t on the 4 local vertices Y and its gradient scattered to 12 entries."""
     kind, ids = kind_table[t], local_table[t]
     X = np.zeros((4, 3))
-    n = K.gather_stencil(ids, Y, X)
+    n = K.gather_stencil(local_table, t, Y, X)
     assert n == K.STENCIL_SIZE[kind]
     X = X[:n]
     g = np.zeros(12)
@@ -280,7 +280,7 @@ def test_point_triangle_type_matches_ipctk():
     configs = point_triangle_configs(rng, 2000)
     mismatches = 0
     for Y in configs:
-        t = K.point_triangle_type(*Y)
+        t = K.point_triangle_type(np.asarray(Y, dtype=float))
         tr = int(ipctk.point_triangle_distance_type(*Y))
         d = typed_distance(K.PT_KIND, K.PT_LOCAL, t, Y)
         dr = ipctk.point_triangle_distance(*Y)
@@ -297,7 +297,7 @@ def test_edge_edge_type_matches_ipctk():
     configs = edge_edge_configs(rng, 2500)
     mismatches = 0
     for Y in configs:
-        t = K.edge_edge_type(*Y)
+        t = K.edge_edge_type(np.asarray(Y, dtype=float))
         tr = int(ipctk.edge_edge_distance_type(*Y))
         d = typed_distance(K.EE_KIND, K.EE_LOCAL, t, Y)
         if t != tr:
@@ -328,11 +328,11 @@ def test_edge_edge_parallel_threshold_and_rule_match_ipctk():
     n_par = n_reg = n_diff = 0
     for sin2 in np.geomspace(1e-17, 1e-13, 300):
         Y = near_parallel_edges(rng, sin2, 10 ** rng.uniform(-4, -1))
-        t = K.edge_edge_type(*Y)
+        t = K.edge_edge_type(np.asarray(Y, dtype=float))
         cr = np.cross(Y[1] - Y[0], Y[3] - Y[2])
         if cr @ cr < K.EE_PARALLEL_TOL * ((Y[1] - Y[0]) @ (Y[1] - Y[0])) * ((Y[3] - Y[2]) @ (Y[3] - Y[2])):
             n_par += 1
-            assert t == K._edge_edge_parallel_type(*Y) == int(ipctk.edge_edge_distance_type(*Y))
+            assert t == K._edge_edge_parallel_type(np.asarray(Y, dtype=float)) == int(ipctk.edge_edge_distance_type(*Y))
         else:
             n_reg += 1
             n_diff += t != int(ipctk.edge_edge_distance_type(*Y))
@@ -341,7 +341,7 @@ def test_edge_edge_parallel_threshold_and_rule_match_ipctk():
     assert n_par > 50 and n_reg > 50 and n_diff < 0.2 * n_reg
     # the parallel rule itself, on exactly parallel edges (integer grids: coinciding projections)
     for Y in edge_edge_configs(rng, 1000)[4::5]:
-        assert K._edge_edge_parallel_type(*Y) == int(ipctk.edge_edge_distance_type(*Y))
+        assert K._edge_edge_parallel_type(np.asarray(Y, dtype=float)) == int(ipctk.edge_edge_distance_type(*Y))
 
 
 def test_edge_edge_type_distance_is_exact_for_nearly_parallel_edges():
@@ -351,16 +351,16 @@ def test_edge_edge_type_distance_is_exact_for_nearly_parallel_edges():
     rng = np.random.default_rng(6)
     for _ in range(1500):
         Y = near_parallel_edges(rng, 10 ** rng.uniform(-15.6, -9), 10 ** rng.uniform(-4, -1))
-        d = typed_distance(K.EE_KIND, K.EE_LOCAL, K.edge_edge_type(*Y), Y)
+        d = typed_distance(K.EE_KIND, K.EE_LOCAL, K.edge_edge_type(np.asarray(Y, dtype=float)), Y)
         assert d == pytest.approx(brute_segment_segment(*Y), rel=1e-4)
 
 
 def test_degenerate_edges_match_ipctk():
     z, x = np.zeros(3), np.array([1.0, 0, 0])
     for q in (np.array([0.3, 0.2, 1.0]), np.array([-2.0, 0.5, 0.1]), np.array([3.0, -1.0, 0.0])):
-        assert K.edge_edge_type(q, q, z, x) == int(ipctk.edge_edge_distance_type(q, q, z, x))
-        assert K.edge_edge_type(z, x, q, q) == int(ipctk.edge_edge_distance_type(z, x, q, q))
-        assert K.edge_edge_type(z, z, q, q) == int(ipctk.edge_edge_distance_type(z, z, q, q))
+        assert K.edge_edge_type(np.array([q, q, z, x], dtype=float)) == int(ipctk.edge_edge_distance_type(q, q, z, x))
+        assert K.edge_edge_type(np.array([z, x, q, q], dtype=float)) == int(ipctk.edge_edge_distance_type(z, x, q, q))
+        assert K.edge_edge_type(np.array([z, z, q, q], dtype=float)) == int(ipctk.edge_edge_distance_type(z, z, q, q))
 
 
 def test_degenerate_triangle_gives_closest_segment_feature():
@@ -370,7 +370,7 @@ def test_degenerate_triangle_gives_closest_segment_feature():
         t1, t2 = t0 + d, t0 + rng.choice([-1.5, -0.5, 0.5, 2.0]) * d
         p = rng.standard_normal(3)
         Y = np.array([p, t0, t1, t2])
-        t = K.point_triangle_type(*Y)
+        t = K.point_triangle_type(np.asarray(Y, dtype=float))
         assert t != K.P_T
         ref = min(brute_point_segment(p, a, b) for a, b in ((t0, t1), (t1, t2), (t2, t0)))
         assert typed_distance(K.PT_KIND, K.PT_LOCAL, t, Y) == pytest.approx(ref, rel=1e-9, abs=1e-14)

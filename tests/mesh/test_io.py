@@ -196,3 +196,47 @@ def test_2d_polyline_round_trip(tmp_path):
     assert np.allclose(back.vertices, c.vertices) and np.array_equal(back.faces, c.faces)
     with pytest.raises(MeshError, match="no usable cells"):
         read_mesh(tmp_path / "cage.vtk", kind="volume")
+
+
+def _legacy_vtk(path, points, cells: list[tuple[int, list[int]]], extra: str = "", point_type: str = "double") -> None:
+    """A legacy ASCII VTK unstructured grid written by hand: ``cells`` as (VTK type, vertex ids)."""
+    size = sum(1 + len(c) for _, c in cells)
+    text = ["# vtk DataFile Version 2.0", "test", "ASCII", "DATASET UNSTRUCTURED_GRID"]
+    text.append(f"POINTS {len(points)} {point_type}")
+    text += [" ".join(repr(float(v)) for v in p) for p in points]
+    text.append(f"CELLS {len(cells)} {size}")
+    text += [" ".join(str(i) for i in [len(c), *c]) for _, c in cells]
+    text.append(f"CELL_TYPES {len(cells)}")
+    text += [str(t) for t, _ in cells]
+    path.write_text("\n".join(text) + "\n" + extra)
+
+
+def test_simple_legacy_vtk_reads_as_meshio(tmp_path):
+    """The meshio-free reader of plain legacy VTK files gives meshio's arrays; other files go to meshio."""
+    from idp.mesh import io
+
+    rng = np.random.default_rng(3)
+    pts = rng.standard_normal((7, 3)) * 0.1
+    cells = [(10, [0, 1, 2, 3]), (5, [4, 5, 6]), (10, [1, 2, 3, 4]), (3, [5, 6]), (5, [0, 1, 2])]
+    p = tmp_path / "mixed.vtk"
+    _legacy_vtk(p, pts, cells)
+    fast = io._read_simple_legacy_vtk(p)
+    assert fast is not None
+    m = meshio.read(str(p))
+    assert np.array_equal(fast[0], m.points)
+    assert np.array_equal(fast[1], io._gather(m, io._TET_TYPES, 4))
+    assert np.array_equal(fast[2], io._gather(m, io._TRI_TYPES, 3))
+    assert np.array_equal(fast[3], io._gather(m, io._LINE_TYPES, 2))
+    # not the plain form: meshio reads them
+    for name, kwargs in {
+        "float_points.vtk": {"point_type": "float"},
+        "point_data.vtk": {"extra": "POINT_DATA 7\nSCALARS g int 1\nLOOKUP_TABLE default\n0 1 0 1 0 1 0\n"},
+    }.items():
+        _legacy_vtk(tmp_path / name, pts, cells, **kwargs)
+        assert io._read_simple_legacy_vtk(tmp_path / name) is None
+    _legacy_vtk(tmp_path / "quad.vtk", pts, [(9, [0, 1, 2, 3])])
+    assert io._read_simple_legacy_vtk(tmp_path / "quad.vtk") is None
+    _legacy_vtk(tmp_path / "bad_count.vtk", pts, [(10, [0, 1, 2])])  # a tetrahedron row with 3 ids
+    assert io._read_simple_legacy_vtk(tmp_path / "bad_count.vtk") is None
+    vol = read_mesh(p, validate=False)
+    assert isinstance(vol, VolumeMesh)
