@@ -63,60 +63,6 @@ def _read_meshio(path: Path):
         raise MeshError(f"cannot read mesh file {path}: {text}") from None
 
 
-#: VTK cell type ids of the simple legacy reader: tetrahedron, triangle, line (the cells read_mesh uses)
-_VTK_SIMPLE = {10: 4, 5: 3, 3: 2}
-
-
-def _read_simple_legacy_vtk(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """(points, tets, triangles, segments) of a legacy ASCII VTK unstructured grid that holds only POINTS (double),
-    CELLS (count-prefixed rows) and CELL_TYPES of tetrahedra, triangles and lines, as the paper's meshes are; None
-    for anything else (binary, other datasets or sections, other cells, VTK 5.1 offsets), which meshio then reads.
-    The arrays are those meshio gives (checked on every .vtk file of the paper's data).
-    Importing meshio alone costs ≈ 80 ms of a run's start on the 2-core VM; this reads bunny_700 in ≈ 5 ms."""
-    try:
-        with open(path, "rb") as f:
-            text = f.read().decode("ascii")
-    except (OSError, UnicodeDecodeError):
-        return None
-    lines = text.splitlines()
-    if len(lines) < 4 or not lines[0].startswith("# vtk DataFile") or lines[2].strip().upper() != "ASCII":
-        return None
-    if lines[3].split() != ["DATASET", "UNSTRUCTURED_GRID"]:
-        return None
-    body = " ".join(lines[4:]).split()
-    try:
-        if len(body) < 3 or body[0] != "POINTS" or body[2] != "double":  # meshio keeps "float" points float32
-            return None
-        n = int(body[1])
-        i = 3 + 3 * n
-        points = np.array(body[3:i], dtype=np.float64).reshape(n, 3)
-        if body[i] != "CELLS":
-            return None
-        m, size = int(body[i + 1]), int(body[i + 2])
-        flat = np.array(body[i + 3 : i + 3 + size], dtype=np.int64)
-        i += 3 + size
-        if body[i] != "CELL_TYPES" or int(body[i + 1]) != m or len(body) != i + 2 + m:
-            return None
-        types = np.array(body[i + 2 :], dtype=np.int64)
-    except (IndexError, ValueError):
-        return None
-    if np.isin(types, list(_VTK_SIMPLE), invert=True).any():
-        return None
-    # each cell's length follows from its type, so the row starts of the count-prefixed rows are a cumulative sum;
-    # every count in the file must then be its cell's length
-    widths = np.zeros(types.size, np.int64)
-    for vtk_type, width in _VTK_SIMPLE.items():
-        widths[types == vtk_type] = width
-    starts = np.concatenate([[0], np.cumsum(widths + 1)])
-    if starts[-1] != flat.size or np.any(flat[starts[:-1]] != widths):
-        return None
-    out = []
-    for vtk_type, width in _VTK_SIMPLE.items():
-        rows = starts[:-1][types == vtk_type]
-        out.append(flat[rows[:, None] + 1 + np.arange(width)[None, :]])
-    return points, out[0], out[1], out[2]
-
-
 def _gather(mesh, types: tuple[str, ...], width: int) -> np.ndarray:
     """Concatenate the corner indices of all cell blocks of the given types."""
     blocks = [np.asarray(c.data)[:, :width] for c in mesh.cells if c.type in types]
@@ -280,8 +226,6 @@ def read_mesh(
     if ext == ".obj":
         obj = read_obj(p)
         points, tets, tris = obj.vertices, np.zeros((0, 4), np.int64), obj.faces
-    elif ext == ".vtk" and (simple := _read_simple_legacy_vtk(p)) is not None:
-        points, tets, tris, lines = simple
     else:
         m = _read_meshio(p)
         points = m.points
