@@ -388,9 +388,14 @@ class GrowingBlockPattern:
 
 
 def _embedding(small: BlockLayout, large: BlockLayout) -> np.ndarray:
-    """Position in ``large`` of every CSR entry of ``small`` (whose couplings ``large`` contains)."""
+    """Position in ``large`` of every CSR entry of ``small`` (whose couplings ``large`` contains).
+
+    Built one block entry (a, b) at a time, so the temporaries are of the number of blocks, not of entries
+    (built while the factor of the last pattern is still alive)."""
     out = np.empty(small.nnz, dtype=np.int64)
-    out[small.positions(np.arange(small.keys.size)).ravel()] = large.positions(
-        np.searchsorted(large.keys, small.keys)
-    ).ravel()
+    s_first, s_stride = small.block_starts(np.arange(small.keys.size))
+    l_first, l_stride = large.block_starts(np.searchsorted(large.keys, small.keys))
+    for r in range(small.d):
+        for c in range(small.d):
+            out[s_first + (r * s_stride + c)] = l_first + (r * l_stride + c)
     return out
