@@ -209,6 +209,7 @@ class GrowingBlockPattern:
         """New layout = base ∪ ``extra`` couplings."""
         self.extra = extra
         full = np.union1d(self.base.keys, self.extra)
+        self.layout, self._base_to_full = self.base, None  # the old layout's arrays are freed before the new are built
         self.layout = BlockLayout(full, self.base.nfv, self.base.d)
         self._base_to_full = _embedding(self.base, self.layout)
         self.growths += 1
