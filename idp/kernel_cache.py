@@ -47,7 +47,8 @@ class Kernel:
     name: str
     signature: str  # numba type names, e.g. "(float64[:, ::1], int64)"
     cost: float  # compile seconds measured on the reference machine (2-core AMD EPYC VM): the order of the work
-    # chosen at run time between this entry and another one (thread count, sizes): a run may call either
+    # chosen at run time between this entry and another one (thread count, sizes): a run may call either; or called
+    # only on a path that some runs of the scene never take (so a run may call neither)
     alternative: bool = False
 
     @property
@@ -57,6 +58,16 @@ class Kernel:
 
 _E = "idp.energies._elastic_kernels"
 _CB = "idp.contact.compiled_barrier"
+
+#: the elastic values copied onto the contact pattern once it has grown beyond the elastic one (a run whose contacts
+#: never need a coupling the elastic pattern lacks does not call it)
+_EMBED = Kernel(
+    "idp.solver.contact_pattern",
+    "_embed_blocks",
+    "(float64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64, float64[::1])",
+    0.2,
+    alternative=True,
+)
 
 #: Entry kernels by feature; the signatures are the ones the Python wrappers pass (contiguous arrays of the
 #: dtypes they convert to), so a compiled entry here is the one the run then loads.
@@ -169,6 +180,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             13.1,
         ),
         Kernel(_CB, "_accumulate_gradient", "(int32[:, ::1], float64[:, ::1], float64[::1])", 0.1),
+        _EMBED,
         Kernel(
             "idp.solver.contact_pattern",
             "_scatter_blocks",
@@ -205,6 +217,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
     ),
     # contact through ipctk's barrier (2D, or barrier = "ipctk"): its Hessian scattered into the Newton matrix
     "contact_ipctk": (
+        _EMBED,
         Kernel(
             "idp.solver.contact_pattern",
             "_scatter_csc",

@@ -139,6 +139,21 @@ def _scatter_blocks_parts(
         counts[p] = n_missing
 
 
+@numba.njit(cache=True)
+def _embed_blocks(src, src_vptr, src_deg, dst_vptr, dst_deg, dst_block, d, dst):  # pragma: no cover
+    """dst[...] = src[...] for every d×d block of a block layout, block e of ``src`` going to block
+    ``dst_block[e]`` of the larger layout of ``dst`` (same block rows): a per-block map instead of a per-entry one
+    (at bunnyx30_13K 1.8 MB instead of 16 MB, alive all run)."""
+    for i in range(src_vptr.size - 1):
+        s_stride, t_stride = d * src_deg[i], d * dst_deg[i]
+        for e in range(src_vptr[i], src_vptr[i + 1]):
+            s0 = d * d * src_vptr[i] + d * (e - src_vptr[i])
+            t0 = d * d * dst_vptr[i] + d * (dst_block[e] - dst_vptr[i])
+            for a in range(d):
+                for b in range(d):
+                    dst[t0 + a * t_stride + b] = src[s0 + a * s_stride + b]
+
+
 class GrowingBlockPattern:
     """Assembles elastic values (on the base layout) plus contact COO entries into a padded block pattern."""
 
@@ -211,7 +226,7 @@ class GrowingBlockPattern:
         full = np.union1d(self.base.keys, self.extra)
         self.layout, self._base_to_full = self.base, None  # the old layout's arrays are freed before the new are built
         self.layout = BlockLayout(full, self.base.nfv, self.base.d)
-        self._base_to_full = _embedding(self.base, self.layout)
+        self._base_to_full = np.searchsorted(self.layout.keys, self.base.keys)  # block of the new layout per base block
         self.growths += 1
 
     def _fold(self, data: np.ndarray, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> bool:
@@ -267,10 +282,12 @@ class GrowingBlockPattern:
             self.folds, self.growths = (int(v) for v in counters)
 
     def _full_data(self, base_data: np.ndarray) -> np.ndarray:
+        """The base values on the current (possibly grown) layout, zeros at the extra couplings."""
         if self._base_to_full is None:
             return base_data.copy()
         data = np.zeros(self.layout.nnz)
-        data[self._base_to_full] = base_data
+        B, L = self.base, self.layout
+        _embed_blocks(base_data, B.vptr, B.deg, L.vptr, L.deg, self._base_to_full, B.d, data)
         return data
 
     def assemble(
@@ -380,23 +397,11 @@ class GrowingBlockPattern:
         old = self.layout
         self._set_extra(np.union1d(self.extra, self._outside_base(keys)))
         exact = np.zeros(self.layout.nnz)
-        exact[_embedding(old, self.layout)] = data
+        new = self.layout
+        _embed_blocks(data, old.vptr, old.deg, new.vptr, new.deg, np.searchsorted(new.keys, old.keys), old.d, exact)
         pos, found = self.layout.entry_positions(K.row.astype(np.int64), K.col.astype(np.int64))
         assert found.all(), "folded couplings are in the grown pattern"
         np.add.at(exact, pos, K.data)
         self.fold_correction, self._folded = None, None
         return self._matrix(exact)
 
-
-def _embedding(small: BlockLayout, large: BlockLayout) -> np.ndarray:
-    """Position in ``large`` of every CSR entry of ``small`` (whose couplings ``large`` contains).
-
-    Built one block entry (a, b) at a time, so the temporaries are of the number of blocks, not of entries
-    (built while the factor of the last pattern is still alive)."""
-    out = np.empty(small.nnz, dtype=np.int64)
-    s_first, s_stride = small.block_starts(np.arange(small.keys.size))
-    l_first, l_stride = large.block_starts(np.searchsorted(large.keys, small.keys))
-    for r in range(small.d):
-        for c in range(small.d):
-            out[s_first + (r * s_stride + c)] = l_first + (r * l_stride + c)
-    return out
