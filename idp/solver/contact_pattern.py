@@ -313,12 +313,14 @@ class GrowingBlockPattern:
             if missing:
                 rows, cols = np.empty(missing, dtype=np.int64), np.empty(missing, dtype=np.int64)
                 vals = np.empty(missing)
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, rows, cols, vals)
                 if not self._fold(data, rows, cols, vals):
                     for every_entry in (False, True):
                         self._grow(C, dof_map, every_entry)
                         L = self.layout
+                        del data  # stale values: freed before the new ones are allocated
                         data = self._full_data(base_data)
                         if not _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, none, none, nonef):
                             break
@@ -362,6 +364,7 @@ class GrowingBlockPattern:
         if missing:
             if missing > where.shape[0]:  # more than there was room for: list them all
                 where = np.empty((missing, 3), np.int64)
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 scatter(data, where)
             where = where[:missing]
@@ -379,6 +382,7 @@ class GrowingBlockPattern:
                 pb = np.broadcast_to(bv[:, None, :], (bv.shape[0], 4, 4))
                 live = (pa >= 0) & (pb >= 0)
                 self._grow_keys(pa[live] * nfv + pb[live])
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 if scatter(data, np.zeros((0, 3), np.int64)):
                     raise AssertionError("contact blocks missing from the grown pattern")
