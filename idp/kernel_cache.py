@@ -72,7 +72,7 @@ _EMBED = Kernel(
 #: Entry kernels by feature; the signatures are the ones the Python wrappers pass (contiguous arrays of the
 #: dtypes they convert to), so a compiled entry here is the one the run then loads.
 GROUPS: dict[str, tuple[Kernel, ...]] = {
-    # every run: the Newton matrix (assembly) and the fill estimate of its factor (symbolic)
+    # every run: the Newton matrix (assembly), the fill estimate of its factor (symbolic), the input's surface checks
     "solver": (
         Kernel("idp.solver.assembly", "_scatter_add", "(float64[::1], int64[::1], float64[::1], float64)", 0.05),
         Kernel("idp.solver.symbolic", "_etree", "(int32[::1], int32[::1], int64[::1], int64[::1], int64)", 0.3),
@@ -84,6 +84,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             0.8,
         ),
         Kernel("idp.solver.symbolic", "_supernodes", "(int64[::1], int64[::1], int64[::1], int64)", 0.2),
+        # the input's surface checks (components of boundary loops, face fans, surface parts)
+        Kernel("idp.mesh.components", "_component_labels", "(int64, int64[::1], int64[::1], int64[::1])", 0.3),
     ),
     # deformable solids (tetrahedra in 3D, triangles in 2D): elasticity and the inversion filter
     "solid": (
