@@ -11,7 +11,6 @@ Pairs of primitives that share a vertex are never reported (they touch by constr
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from idp.errors import MeshError
 
@@ -155,6 +154,8 @@ def _segment_candidates(v: np.ndarray, s: np.ndarray) -> np.ndarray:
     if short.size > 1:
         mid = 0.5 * (p[short] + q[short])
         radius = float(length[short].max()) * (1.0 + 1e-9)
+        from scipy.spatial import cKDTree  # 2D only: 3D runs do not import scipy.spatial (≈ 7 MB)
+
         kd = cKDTree(mid)
         pairs = kd.query_pairs(radius, output_type="ndarray")
         if pairs.size:

@@ -37,7 +37,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from idp.errors import SolverError
 
@@ -346,6 +345,8 @@ class ScipySolver(LinearSolver):
         else:
             M = sp.csc_matrix((data, indices, indptr), shape=(n, n))
             spec = "MMD_AT_PLUS_A"
+        import scipy.sparse.linalg as spla  # imported here: the CHOLMOD path needs neither it nor scipy.linalg (10 MB)
+
         try:
             lu = spla.splu(M, permc_spec=spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         except RuntimeError as exc:  # "Factor is exactly singular"
