@@ -253,6 +253,9 @@ class BlockLayout:
         for r in range(d):
             for c in range(d):
                 self.indices[first + (r * stride + c)] = col + c
+        # never changed after this: the linear solver then keeps these arrays as the pattern it analysed, not copies
+        self.indptr.flags.writeable = False
+        self.indices.flags.writeable = False
 
     def block_starts(self, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """CSR position of entry (0, 0) of each given block and its row stride: entry (a, b) sits at
