@@ -6,14 +6,15 @@ default the threshold is *dynamic*: every time a mapped block is freed, the thre
 size (up to 32 MiB). A run allocates and frees arrays of 1–30 MB every Newton iteration (the matrix values,
 pattern index maps, CHOLMOD's workspace, candidate lists), so after the first few the threshold sits near
 32 MiB and those arrays land in the heap, where holes between long-lived blocks (a new contact pattern's
-index maps) keep them resident. Measured at bunnyx30_13K resumed at step 50 (10 steps, 2-core VM): peak RSS
-813 MB with the dynamic threshold, 656 MB with a fixed 1 MiB threshold (651 MB with 256 KiB, 670 MB with
-4 MiB, 758 MB with 16 MiB); the same iterates.
+index maps) keep them resident. Measured at bunnyx30_13K resumed at step 50 (10 steps, 2-core VM, peak RSS by GNU
+time): 814 MB with the dynamic threshold, 698 MB with a fixed 1 MiB threshold, the same iterates; the high-water
+mark of the factorisations alone was 813 MB dynamic and 651 / 656 / 670 / 758 MB for 256 KiB / 1 MiB / 4 MiB /
+16 MiB.
 
 Setting the threshold once (``mallopt``) also turns the dynamic adjustment off. Arrays below 1 MiB (a 57K-DOF
-vector is 0.45 MB) stay in the heap, where reuse costs no page faults. A user's own ``MALLOC_MMAP_THRESHOLD_``
-or ``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES=glibc.malloc...`` (read by glibc at start-up) wins: then nothing is changed. Other C libraries
-(musl, macOS) are left alone.
+vector is 0.45 MB) stay in the heap, where reuse costs no page faults. A user's own ``MALLOC_MMAP_THRESHOLD_``,
+``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES=glibc.malloc...`` (read by glibc at start-up) wins: then nothing
+is changed. Other C libraries (musl, macOS) are left alone.
 """
 
 from __future__ import annotations

@@ -408,4 +408,3 @@ class GrowingBlockPattern:
         np.add.at(exact, pos, K.data)
         self.fold_correction, self._folded = None, None
         return self._matrix(exact)
-
