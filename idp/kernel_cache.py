@@ -222,9 +222,9 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         _EMBED,
         Kernel(
             "idp.solver.contact_pattern",
-            "_scatter_csc",
-            "(int32[::1], int32[::1], float64[::1], int64[::1], int32[::1], int32[::1], float64[::1], int64[::1],"
-            " int64[::1], float64[::1])",
+            "_scatter_csc",  # the layout's indptr / indices are read-only (kept by the linear solver as they are)
+            "(int32[::1], int32[::1], float64[::1], int64[::1], Array(int32, 1, 'C', readonly=True),"
+            " Array(int32, 1, 'C', readonly=True), float64[::1], int64[::1], int64[::1], float64[::1])",
             0.5,
         ),
     ),
