@@ -47,7 +47,8 @@ class Kernel:
     name: str
     signature: str  # numba type names, e.g. "(float64[:, ::1], int64)"
     cost: float  # compile seconds measured on the reference machine (2-core AMD EPYC VM): the order of the work
-    # chosen at run time between this entry and another one (thread count, sizes): a run may call either
+    # chosen at run time between this entry and another one (thread count, sizes): a run may call either; or called
+    # only on a path that some runs of the scene never take (so a run may call neither)
     alternative: bool = False
 
     @property
@@ -58,10 +59,20 @@ class Kernel:
 _E = "idp.energies._elastic_kernels"
 _CB = "idp.contact.compiled_barrier"
 
+#: the elastic values copied onto the contact pattern once it has grown beyond the elastic one (a run whose contacts
+#: never need a coupling the elastic pattern lacks does not call it)
+_EMBED = Kernel(
+    "idp.solver.contact_pattern",
+    "_embed_blocks",
+    "(float64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64, float64[::1])",
+    0.2,
+    alternative=True,
+)
+
 #: Entry kernels by feature; the signatures are the ones the Python wrappers pass (contiguous arrays of the
 #: dtypes they convert to), so a compiled entry here is the one the run then loads.
 GROUPS: dict[str, tuple[Kernel, ...]] = {
-    # every run: the Newton matrix (assembly) and the fill estimate of its factor (symbolic)
+    # every run: the Newton matrix (assembly), the fill estimate of its factor (symbolic), the input's surface checks
     "solver": (
         Kernel("idp.solver.assembly", "_scatter_add", "(float64[::1], int64[::1], float64[::1], float64)", 0.05),
         Kernel("idp.solver.symbolic", "_etree", "(int32[::1], int32[::1], int64[::1], int64[::1], int64)", 0.3),
@@ -73,6 +84,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             0.8,
         ),
         Kernel("idp.solver.symbolic", "_supernodes", "(int64[::1], int64[::1], int64[::1], int64)", 0.2),
+        # the input's surface checks (components of boundary loops, face fans, surface parts)
+        Kernel("idp.mesh.components", "_component_labels", "(int64, int64[::1], int64[::1], int64[::1])", 0.3),
     ),
     # deformable solids (tetrahedra in 3D, triangles in 2D): elasticity and the inversion filter
     "solid": (
@@ -169,6 +182,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             13.1,
         ),
         Kernel(_CB, "_accumulate_gradient", "(int32[:, ::1], float64[:, ::1], float64[::1])", 0.1),
+        _EMBED,
         Kernel(
             "idp.solver.contact_pattern",
             "_scatter_blocks",
@@ -205,11 +219,12 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
     ),
     # contact through ipctk's barrier (2D, or barrier = "ipctk"): its Hessian scattered into the Newton matrix
     "contact_ipctk": (
+        _EMBED,
         Kernel(
             "idp.solver.contact_pattern",
-            "_scatter_csc",
-            "(int32[::1], int32[::1], float64[::1], int64[::1], int32[::1], int32[::1], float64[::1], int64[::1],"
-            " int64[::1], float64[::1])",
+            "_scatter_csc",  # the layout's indptr / indices are read-only (kept by the linear solver as they are)
+            "(int32[::1], int32[::1], float64[::1], int64[::1], Array(int32, 1, 'C', readonly=True),"
+            " Array(int32, 1, 'C', readonly=True), float64[::1], int64[::1], int64[::1], float64[::1])",
             0.5,
         ),
     ),

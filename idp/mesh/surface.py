@@ -10,10 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from idp.errors import MeshError
+from idp.mesh.components import connected_components
 
 # Outward faces of a positively oriented tet (a, b, c, d) = local indices (0, 1, 2, 3).
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
@@ -130,9 +129,7 @@ def _count_components(edges: np.ndarray, num_vertices: int) -> int:
     used = np.unique(edges.ravel())
     if used.size == 0:
         return 0
-    ones = np.ones(edges.shape[0], dtype=np.int8)
-    graph = sp.coo_matrix((ones, (edges[:, 0], edges[:, 1])), shape=(num_vertices, num_vertices))
-    _, labels = connected_components(graph, directed=False)
+    _, labels = connected_components(num_vertices, edges[:, 0], edges[:, 1])
     return int(np.unique(labels[used]).size)
 
 

@@ -17,10 +17,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from idp.errors import MeshError
+from idp.mesh.components import connected_components
 from idp.mesh.differential import face_area_normals
 from idp.mesh.surface import _count_components, _directed_edges, _unique_rows
 
@@ -137,8 +136,7 @@ def _nonmanifold_vertices(F: np.ndarray, edge_of: np.ndarray, counts: np.ndarray
     b2 = np.where(F[f2, c2] == vb, c2, (c2 + 1) % 3)
     rows = np.concatenate([3 * f1 + c1, 3 * f1 + (c1 + 1) % 3])
     cols = np.concatenate([3 * f2 + a2, 3 * f2 + b2])
-    graph = sp.coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(3 * m, 3 * m))
-    _, labels = connected_components(graph, directed=False)
+    _, labels = connected_components(3 * m, rows, cols)
     vertex_of_label = np.zeros(labels.max() + 1, dtype=np.int64)
     vertex_of_label[labels] = F.ravel()
     fans = np.bincount(vertex_of_label, minlength=n)
@@ -215,8 +213,7 @@ def check_shell_surface(
 
     interior = np.flatnonzero(counts == 2)
     fa, fb = order[starts[interior]] // 3, order[starts[interior] + 1] // 3
-    adjacency = sp.coo_matrix((np.ones(fa.size, dtype=np.int8), (fa, fb)), shape=(m, m))
-    num_components, comp = connected_components(adjacency, directed=False)
+    num_components, comp = connected_components(m, fa, fb)
 
     bowties = _nonmanifold_vertices(F, edge_of, counts, n)
     if bowties.size:

@@ -17,7 +17,6 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -179,6 +178,8 @@ class FrameWriter:
         return meshio.Mesh(pts, list(self._cells), point_data=pdata, cell_data=cdata)
 
     def _pvd_text(self) -> str:
+        from xml.sax.saxutils import quoteattr  # VTU output only (it imports urllib, http and email: 2 MB)
+
         lines = [
             '<?xml version="1.0"?>',
             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">',

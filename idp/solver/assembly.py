@@ -246,9 +246,22 @@ class BlockLayout:
         self.indptr[:-1] = (d * d * self.vptr[:-1, None] + a[None, :] * d * self.deg[:, None]).ravel()
         self.indptr[-1] = self.nnz
         self.indices = np.empty(self.nnz, dtype=np.int32)
-        self.indices[self.positions(np.arange(keys.size)).ravel()] = np.broadcast_to(
-            d * vcol[:, None, None] + a[None, None, :], (keys.size, d, d)
-        ).ravel()
+        # one (row a, column b) entry of every block at a time: index temporaries of keys.size, not of nnz
+        # (at bunnyx30_13K the full (blocks, d, d) int64 positions were 2 × 19 MB while the factor was alive)
+        first, stride = self.block_starts(np.arange(keys.size))
+        col = (d * vcol).astype(np.int32)
+        for r in range(d):
+            for c in range(d):
+                self.indices[first + (r * stride + c)] = col + c
+        # never changed after this: the linear solver then keeps these arrays as the pattern it analysed, not copies
+        self.indptr.flags.writeable = False
+        self.indices.flags.writeable = False
+
+    def block_starts(self, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """CSR position of entry (0, 0) of each given block and its row stride: entry (a, b) sits at
+        first + a·stride + b."""
+        i = self.vrow[blocks]
+        return self.d * self.d * self.vptr[i] + self.d * (blocks - self.vptr[i]), self.d * self.deg[i]
 
     def positions(self, blocks: np.ndarray) -> np.ndarray:
         """(len(blocks), d, d) CSR positions of the entries of the given block indices."""

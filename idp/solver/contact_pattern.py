@@ -139,6 +139,21 @@ def _scatter_blocks_parts(
         counts[p] = n_missing
 
 
+@numba.njit(cache=True)
+def _embed_blocks(src, src_vptr, src_deg, dst_vptr, dst_deg, dst_block, d, dst):  # pragma: no cover
+    """dst[...] = src[...] for every d×d block of a block layout, block e of ``src`` going to block
+    ``dst_block[e]`` of the larger layout of ``dst`` (same block rows): a per-block map instead of a per-entry one
+    (at bunnyx30_13K 1.8 MB instead of 16 MB, alive all run)."""
+    for i in range(src_vptr.size - 1):
+        s_stride, t_stride = d * src_deg[i], d * dst_deg[i]
+        for e in range(src_vptr[i], src_vptr[i + 1]):
+            s0 = d * d * src_vptr[i] + d * (e - src_vptr[i])
+            t0 = d * d * dst_vptr[i] + d * (dst_block[e] - dst_vptr[i])
+            for a in range(d):
+                for b in range(d):
+                    dst[t0 + a * t_stride + b] = src[s0 + a * s_stride + b]
+
+
 class GrowingBlockPattern:
     """Assembles elastic values (on the base layout) plus contact COO entries into a padded block pattern."""
 
@@ -209,8 +224,9 @@ class GrowingBlockPattern:
         """New layout = base ∪ ``extra`` couplings."""
         self.extra = extra
         full = np.union1d(self.base.keys, self.extra)
+        self.layout, self._base_to_full = self.base, None  # the old layout's arrays are freed before the new are built
         self.layout = BlockLayout(full, self.base.nfv, self.base.d)
-        self._base_to_full = _embedding(self.base, self.layout)
+        self._base_to_full = np.searchsorted(self.layout.keys, self.base.keys)  # block of the new layout per base block
         self.growths += 1
 
     def _fold(self, data: np.ndarray, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> bool:
@@ -266,10 +282,12 @@ class GrowingBlockPattern:
             self.folds, self.growths = (int(v) for v in counters)
 
     def _full_data(self, base_data: np.ndarray) -> np.ndarray:
+        """The base values on the current (possibly grown) layout, zeros at the extra couplings."""
         if self._base_to_full is None:
             return base_data.copy()
         data = np.zeros(self.layout.nnz)
-        data[self._base_to_full] = base_data
+        B, L = self.base, self.layout
+        _embed_blocks(base_data, B.vptr, B.deg, L.vptr, L.deg, self._base_to_full, B.d, data)
         return data
 
     def assemble(
@@ -295,12 +313,14 @@ class GrowingBlockPattern:
             if missing:
                 rows, cols = np.empty(missing, dtype=np.int64), np.empty(missing, dtype=np.int64)
                 vals = np.empty(missing)
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, rows, cols, vals)
                 if not self._fold(data, rows, cols, vals):
                     for every_entry in (False, True):
                         self._grow(C, dof_map, every_entry)
                         L = self.layout
+                        del data  # stale values: freed before the new ones are allocated
                         data = self._full_data(base_data)
                         if not _scatter_csc(cptr, crow, C.data, dof_map, L.indptr, L.indices, data, none, none, nonef):
                             break
@@ -344,6 +364,7 @@ class GrowingBlockPattern:
         if missing:
             if missing > where.shape[0]:  # more than there was room for: list them all
                 where = np.empty((missing, 3), np.int64)
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 scatter(data, where)
             where = where[:missing]
@@ -361,6 +382,7 @@ class GrowingBlockPattern:
                 pb = np.broadcast_to(bv[:, None, :], (bv.shape[0], 4, 4))
                 live = (pa >= 0) & (pb >= 0)
                 self._grow_keys(pa[live] * nfv + pb[live])
+                del data  # stale values: freed before the new ones are allocated
                 data = self._full_data(base_data)
                 if scatter(data, np.zeros((0, 3), np.int64)):
                     raise AssertionError("contact blocks missing from the grown pattern")
@@ -379,18 +401,10 @@ class GrowingBlockPattern:
         old = self.layout
         self._set_extra(np.union1d(self.extra, self._outside_base(keys)))
         exact = np.zeros(self.layout.nnz)
-        exact[_embedding(old, self.layout)] = data
+        new = self.layout
+        _embed_blocks(data, old.vptr, old.deg, new.vptr, new.deg, np.searchsorted(new.keys, old.keys), old.d, exact)
         pos, found = self.layout.entry_positions(K.row.astype(np.int64), K.col.astype(np.int64))
         assert found.all(), "folded couplings are in the grown pattern"
         np.add.at(exact, pos, K.data)
         self.fold_correction, self._folded = None, None
         return self._matrix(exact)
-
-
-def _embedding(small: BlockLayout, large: BlockLayout) -> np.ndarray:
-    """Position in ``large`` of every CSR entry of ``small`` (whose couplings ``large`` contains)."""
-    out = np.empty(small.nnz, dtype=np.int64)
-    out[small.positions(np.arange(small.keys.size)).ravel()] = large.positions(
-        np.searchsorted(large.keys, small.keys)
-    ).ravel()
-    return out

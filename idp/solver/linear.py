@@ -37,7 +37,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from idp.errors import SolverError
 
@@ -102,6 +101,26 @@ def compressed_arrays(A: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     return A.indptr, A.indices, data, int(n)
 
 
+def _frozen(a: np.ndarray) -> bool:
+    """Read-only, and so is the array owning its memory: no view of it can write (numpy makes no writeable view
+    of a read-only array) unless the owner sets itself writeable again, which the one owner that freezes its
+    arrays (:class:`idp.solver.assembly.BlockLayout`) never does. scipy's matrices hold views of those arrays."""
+    owner = a
+    while isinstance(owner.base, np.ndarray):
+        owner = owner.base
+    return not a.flags.writeable and owner.base is None and not owner.flags.writeable
+
+
+def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same elements of the same memory (so equal, when that memory is frozen)."""
+    return (
+        a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
+        and a.dtype == b.dtype
+        and a.shape == b.shape
+        and a.strides == b.strides
+    )
+
+
 class PatternCache:
     """Remember one sparsity pattern and compare new ones against it cheaply."""
 
@@ -115,12 +134,17 @@ class PatternCache:
             return False
         if self.indptr.shape != indptr.shape or self.indices.shape != indices.shape:
             return False
+        frozen = _frozen(self.indptr) and _frozen(self.indices) and _frozen(indptr) and _frozen(indices)
+        if frozen and _same_memory(self.indptr, indptr) and _same_memory(self.indices, indices):
+            return True
         return bool(np.array_equal(self.indptr, indptr) and np.array_equal(self.indices, indices))
 
     def store(self, indptr: np.ndarray, indices: np.ndarray) -> None:
-        """Keep private copies (the caller may reuse its arrays in place)."""
-        self.indptr = np.array(indptr, copy=True)
-        self.indices = np.array(indices, copy=True)
+        """Keep private copies (the caller may reuse its arrays in place), or the arrays themselves when nobody can
+        change them: read-only arrays that own their memory (the contact pattern's layouts; at bunnyx30_13K the
+        copies were 9.7 MB)."""
+        self.indptr = indptr if _frozen(indptr) else np.array(indptr, copy=True)
+        self.indices = indices if _frozen(indices) else np.array(indices, copy=True)
 
     def clear(self) -> None:
         self.indptr = None
@@ -346,6 +370,8 @@ class ScipySolver(LinearSolver):
         else:
             M = sp.csc_matrix((data, indices, indptr), shape=(n, n))
             spec = "MMD_AT_PLUS_A"
+        import scipy.sparse.linalg as spla  # imported here: the CHOLMOD path needs neither it nor scipy.linalg (10 MB)
+
         try:
             lu = spla.splu(M, permc_spec=spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         except RuntimeError as exc:  # "Factor is exactly singular"

@@ -458,6 +458,7 @@ class StepSolver:
                 p_free = self._exact_direction(H, g, p_free, res)
                 res.decrement = self._measure(p_free) / sqrt_h
                 converged = res.decrement <= cfg.tol
+            del H  # the matrix is not needed past the direction: not alive during the line search or the next assembly
 
             p = np.zeros(n * d)
             p[free] = p_free

@@ -375,3 +375,26 @@ def test_the_gradient_descent_scaling_is_finite_and_positive():
     assert np.all(np.isfinite(d)) and np.all(d > 0)
     assert d[0] == 4.0 and d[2] == 2.0 and d[1] == d[3] == d[4] == d[5] == 3.0  # the median of 4 and 2
     assert np.array_equal(_positive_scaling(np.zeros(3)), np.ones(3))
+
+
+def test_pattern_cache_keeps_frozen_layout_arrays_and_copies_writeable_ones():
+    """A block layout's arrays are read-only: the cache keeps them (through scipy's views) instead of copies, and
+    still sees a change of pattern; arrays a caller may change in place are copied."""
+    from idp.solver.assembly import BlockLayout
+    from idp.solver.linear import PatternCache
+
+    layout = BlockLayout(np.array([0, 1, 2, 3], dtype=np.int64), 2, 3)
+    A = sp.csr_matrix((np.ones(layout.nnz), layout.indices, layout.indptr), shape=(6, 6))
+    cache = PatternCache()
+    cache.store(A.indptr, A.indices)
+    assert np.shares_memory(cache.indices, layout.indices)
+    B = sp.csr_matrix((np.zeros(layout.nnz), layout.indices, layout.indptr), shape=(6, 6))
+    assert cache.same(B.indptr, B.indices)
+    other = BlockLayout(np.array([0, 3], dtype=np.int64), 2, 3)
+    assert not cache.same(other.indptr, other.indices)
+
+    indptr, indices = A.indptr.copy(), A.indices.copy()  # writeable: copied
+    cache.store(indptr, indices)
+    assert not np.shares_memory(cache.indices, indices)
+    indices[0] = 5
+    assert not cache.same(indptr, indices)
