@@ -11,8 +11,11 @@ time): 814 MB with the dynamic threshold, 698 MB with a fixed 1 MiB threshold, t
 mark of the factorisations alone was 813 MB dynamic and 651 / 656 / 670 / 758 MB for 256 KiB / 1 MiB / 4 MiB /
 16 MiB.
 
-Setting the threshold once (``mallopt``) also turns the dynamic adjustment off. Arrays below 1 MiB (a 57K-DOF
-vector is 0.45 MB) stay in the heap, where reuse costs no page faults. A user's own ``MALLOC_MMAP_THRESHOLD_``,
+Setting the threshold once (``mallopt``) also turns the dynamic adjustment off. The threshold is 4 MiB, not
+1 MiB: every mapped allocation is page-faulted afresh, and at 1 MiB that cost bunny_3376 (60 steps, idle 2-core
+VM) 28.3 s instead of 23.3 s (system time 6.0 s instead of 0.9 s); at 4 MiB 23.9 s, while bunnyx30_13K's late
+steps peak at 616 MB instead of 610 MB (``MALLOC_MMAP_THRESHOLD_`` set to each value, same commands). Arrays
+below 4 MiB (a 57K-DOF vector is 0.45 MB) stay in the heap, where reuse costs no page faults. A user's own ``MALLOC_MMAP_THRESHOLD_``,
 ``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES=glibc.malloc...`` (read by glibc at start-up) wins: then nothing
 is changed. Other C libraries (musl, macOS) are left alone.
 """
@@ -25,7 +28,7 @@ import os
 __all__ = ["MMAP_THRESHOLD", "fix_mmap_threshold"]
 
 #: bytes; allocations of at least this size are mapped on their own and unmapped when freed
-MMAP_THRESHOLD = 1 << 20
+MMAP_THRESHOLD = 4 << 20
 _M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number (malloc.h)
 _USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
