@@ -16,8 +16,8 @@ Setting the threshold once (``mallopt``) also turns the dynamic adjustment off. 
 VM) 28.3 s instead of 23.3 s (system time 6.0 s instead of 0.9 s); at 4 MiB 23.9 s, while bunnyx30_13K's late
 steps peak at 616 MB instead of 610 MB (``MALLOC_MMAP_THRESHOLD_`` set to each value, same commands). Arrays
 below 4 MiB (a 57K-DOF vector is 0.45 MB) stay in the heap, where reuse costs no page faults. A user's own
-``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES=glibc.malloc...`` (read by glibc at start-up) wins: then nothing
-is changed. Other C libraries (musl, macOS) are left alone.
+``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES=glibc.malloc...`` (read by glibc at
+start-up) wins: then nothing is changed. Other C libraries (musl, macOS) are left alone.
 """
 
 from __future__ import annotations
