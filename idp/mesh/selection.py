@@ -21,16 +21,24 @@ def _relative_point(p: np.ndarray, vertices: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Selection:
-    """One of: ``box`` = (lo, hi); ``sphere`` = (centre, radius); ``indices``; ``everything``."""
+    """One of: ``box`` = (lo, hi); ``sphere`` = (centre, radius); ``indices``; ``everything`` — minus the
+    vertices ``exclude`` selects (evaluated on the same positions)."""
 
     box: tuple[np.ndarray, np.ndarray] | None = None
     sphere: tuple[np.ndarray, float] | None = None
     indices: np.ndarray | None = None
     everything: bool = False
     relative: bool = False
+    exclude: Selection | None = None
 
     def select(self, vertices: np.ndarray) -> np.ndarray:
         """Sorted local vertex indices (int64) selected among ``vertices`` (n, d)."""
+        chosen = self._select_base(vertices)
+        if self.exclude is None:
+            return chosen
+        return np.setdiff1d(chosen, self.exclude.select(vertices), assume_unique=True).astype(np.int64)
+
+    def _select_base(self, vertices: np.ndarray) -> np.ndarray:
         v = np.asarray(vertices, dtype=float)
         n = v.shape[0]
         if self.everything:

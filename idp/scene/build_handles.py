@@ -14,6 +14,13 @@ from idp.stepper import motions as mo
 
 def selection_from_spec(spec, groups: dict[str, np.ndarray] | None = None) -> Selection:
     """A :class:`~idp.mesh.selection.Selection` from a ``SelectionSpec``; ``groups``: the mesh's vertex groups."""
+    selection = _base_selection(spec, groups)
+    if getattr(spec, "exclude", None) is not None:
+        selection.exclude = selection_from_spec(spec.exclude, groups)
+    return selection
+
+
+def _base_selection(spec, groups: dict[str, np.ndarray] | None) -> Selection:
     if spec.group is not None:
         groups = groups or {}
         if spec.group not in groups:

@@ -46,13 +46,16 @@ class SelectionSpec(_Model):
     """Exactly one of ``box`` [lo, hi], ``sphere``, ``indices`` (object-local vertex ids) or ``group`` (a named
     vertex group of the mesh file: a point set, or an integer/bool point field whose nonzero entries are in).
 
-    ``relative``: box corners / sphere centre are fractions of the object's bounding box (0 = min, 1 = max)."""
+    ``relative``: box corners / sphere centre are fractions of the object's bounding box (0 = min, 1 = max).
+    ``exclude``: a second selection whose vertices are taken out (e.g. the left half of a sheet minus a disk
+    about its centre = the left half of its rim); its own ``relative`` refers to the same bounding box."""
 
     box: list[list[Float]] | None = None
     sphere: SphereSpec | None = None
     indices: Annotated[list[NonNegInt], Field(min_length=1)] | None = None
     group: Name | None = None
     relative: Bool = False
+    exclude: SelectionSpec | None = None
 
     @model_validator(mode="after")
     def _one(self) -> SelectionSpec:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import collections
 import itertools
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
@@ -657,6 +658,17 @@ class SceneObject(_Model):
         return self
 
 
+def _selection_vectors(path: str, sel: SelectionSpec, vec: Callable[[str, list[float] | None], None]) -> None:
+    """Dimension checks of a selection's box corners and sphere centre, and of its ``exclude``."""
+    if sel.box is not None:
+        vec(f"{path}.box[0]", sel.box[0])
+        vec(f"{path}.box[1]", sel.box[1])
+    if sel.sphere is not None:
+        vec(f"{path}.sphere.center", sel.sphere.center)
+    if sel.exclude is not None:
+        _selection_vectors(f"{path}.exclude", sel.exclude, vec)
+
+
 def _motion_vectors(path: str, m: MotionSpec, d: int, probs: list[tuple[str, str]]) -> None:
     """Dimension checks of a motion's vectors (lengths d; rotation axis only in 3D)."""
 
@@ -743,20 +755,15 @@ class Scene(_Model):
                     vec(f"{p}.fixed[{j}].box[1]", sel.box[1])
             for j, hd in enumerate(ob.handles):
                 q = f"{p}.handles[{j}]"
-                if hd.select.box is not None:
-                    vec(f"{q}.select.box[0]", hd.select.box[0])
-                    vec(f"{q}.select.box[1]", hd.select.box[1])
-                if hd.select.sphere is not None:
-                    vec(f"{q}.select.sphere.center", hd.select.sphere.center)
+                _selection_vectors(f"{q}.select", hd.select, vec)
                 _motion_vectors(f"{q}.motion", hd.motion, d, probs)
             if ob.motion is not None:
                 _motion_vectors(f"{p}.motion.motion", ob.motion.motion, d, probs)
             for j, rs in enumerate(ob.rest_scripts):
                 if isinstance(rs.rate, list):
                     vec(f"{p}.rest_scripts[{j}].rate", rs.rate)
-                if rs.region is not None and rs.region.box is not None:
-                    vec(f"{p}.rest_scripts[{j}].region.box[0]", rs.region.box[0])
-                    vec(f"{p}.rest_scripts[{j}].region.box[1]", rs.region.box[1])
+                if rs.region is not None:
+                    _selection_vectors(f"{p}.rest_scripts[{j}].region", rs.region, vec)
             if ob.generate is not None and ob.generate.dim != d:
                 probs.append(
                     (

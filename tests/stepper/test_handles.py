@@ -526,3 +526,22 @@ def test_incremental_is_refused_for_position_motions():
         MotionSpec(type="fixed", incremental=True)
     with pytest.raises(Exception, match="law"):
         MotionSpec(type="translate", velocity=[0, 1, 0], law="exponential")
+
+
+def test_handle_selection_with_exclude_takes_the_excluded_vertices_out():
+    # the right tenth of the beam minus a ball about its tip corner: the tip face keeps only far vertices
+    ball = {"sphere": {"center": [0.5, 0.05, 0.05], "radius": 0.06}}
+    select = {**RIGHT, "exclude": ball}
+    built = build_scene(beam_scene([{"name": "tip", "select": select}], steps=1))
+    x = built.system.x.reshape(-1, 3)
+    chosen = built.system.conditions[0].handles[0].vertices
+    box = np.flatnonzero(x[:, 0] >= 0.5 - 0.02 - 1e-12)
+    near = np.linalg.norm(x - [0.5, 0.05, 0.05], axis=1) <= 0.06
+    np.testing.assert_array_equal(np.sort(chosen), box[~near[box]])
+    assert 0 < chosen.size < box.size
+
+
+def test_exclude_vectors_are_checked_against_dim():
+    bad = {**RIGHT, "exclude": {"sphere": {"center": [0.5, 0.05], "radius": 0.06}}}
+    with pytest.raises(SceneError, match=r"handles\[0\]\.select\.exclude\.sphere\.center"):
+        beam_scene([{"name": "tip", "select": bad}], steps=1)
