@@ -44,3 +44,16 @@ def test_bench_tiny_scene_writes_json_table_and_plots(tmp_path, capsys):
 def test_bench_unknown_scene_is_an_error(tmp_path, capsys):
     assert main(["bench", "--only", "nope", "-o", str(tmp_path)]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_bench_staged_scene_sums_its_stages(tmp_path, capsys):
+    assert main(["bench", "--only", "tiny_stages", "-o", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "tiny_stages.json").read_text())
+    assert [s["stage"] for s in res["stages"]] == ["grow", "settle"]
+    assert [s["steps"] for s in res["stages"]] == [2, 1] and res["steps"] == 3
+    assert res["newton_iterations"] == sum(s["newton_iterations"] for s in res["stages"]) == sum(res["newton_per_step"])
+    assert res["certified_frames"] == 3 and res["uncertified_frames"] == 0
+    assert abs(sum(res["per_iteration_split"].values()) * res["newton_iterations"] - res["wall_steps"]) <= (
+        0.05 * res["wall_steps"] + 1e-3
+    )
+    assert "| tiny_stages |" in (tmp_path / "results.md").read_text()
