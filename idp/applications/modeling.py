@@ -67,6 +67,70 @@ class StagedResult:
         return all(s.get("all_certified", False) for s in self.stages)
 
 
+def _render_final(scene: Scene, states: dict[str, ObjectState], shapes: dict[str, Path], path: Path) -> None:
+    """The final render: every deformable object's last shape seen from above, the side and the end (3D), or the
+    plane (2D). Obstacles (the tools) are left out; a picture never fails a finished run."""
+    import meshio
+
+    from idp.mesh.surface import boundary_faces
+    from idp.output.parts import Part
+    from idp.output.render import render_frames_png
+    from idp.scene.build import _up_axis
+
+    try:
+        parts, xs, n = [], [], 0
+        for name, target in shapes.items():
+            if states[name].spec.kind == "obstacle":
+                continue
+            m = meshio.read(target)
+            cells = {c.type: c.data.astype(np.int64) for c in m.cells}
+            pts = np.asarray(m.points, dtype=np.float64)[:, : scene.dim]
+            ids = np.arange(n, n + len(pts))
+            if "tetra" in cells or (scene.dim == 2 and "triangle" in cells):
+                el = cells["tetra"] if scene.dim == 3 else cells["triangle"]
+                parts.append(Part(name, "deformable", ids, el + n, boundary_faces(el) + n))
+            elif "triangle" in cells:  # a shell
+                parts.append(Part(name, "shell", ids, None, cells["triangle"] + n))
+            else:
+                continue
+            xs.append(pts)
+            n += len(pts)
+        if not parts:
+            return
+        x = np.concatenate(xs)
+        if scene.dim == 3:
+            parts = _visible_parts(parts, x)
+        if scene.dim == 3:
+            up = _up_axis(scene)
+            frames = [("from above", x), ("oblique", x), ("from the side", x)]
+            render_frames_png(
+                path, parts, frames, dim=3, up=up, views=[(70.0, -90.0), (15.0, -60.0), (15.0, 0.0)], size=(1500, 500)
+            )
+        else:
+            render_frames_png(path, parts, [("final", x)], dim=2, size=(800, 600))
+    except Exception as exc:  # a picture must never lose a finished run
+        log.warning("could not render final.png: %s", exc)
+
+
+def _visible_parts(parts: list, x: np.ndarray) -> list:
+    """Leave out of a 3D picture the bodies shut inside another (a dumpling's filling in its wrapper): hidden
+    anyway, and drawn they show through thin walls where the painter's depth sort of near-touching surfaces
+    misorders faces."""
+    from idp.mesh.containment import shielded
+
+    keep = []
+    for i, p in enumerate(parts):
+        ids = np.unique(p.surface)
+        sample = x[ids[:: max(1, ids.size // 64)]]
+        hidden = any(
+            q.kind == "deformable" and j != i and bool(np.all(shielded(sample, x, q.surface)))
+            for j, q in enumerate(parts)
+        )
+        if not hidden:
+            keep.append(p)
+    return keep or parts
+
+
 def _stage_dir(out: Path, k: int, stage: StageSpec) -> Path:
     return out / "stages" / f"{k:02d}_{stage.name}"
 
@@ -359,11 +423,16 @@ def run_stages(
     if last == len(scene.stages) - 1:
         final = out / "final"
         final.mkdir(exist_ok=True)
+        for stale in final.glob("*.vtu"):  # objects removed since an earlier run of a shorter stage list
+            if stale.stem not in states:
+                stale.unlink()
         for name, st in states.items():
             if st.mesh is not None:
                 target = final / f"{name}.vtu"
                 target.write_bytes(st.mesh.read_bytes())
                 result.final_shapes[name] = target
+        if scene.output.png:
+            _render_final(scene, states, result.final_shapes, final / "final.png")
     per = result.stages
     result.summary = {
         "stages_run": len(per),

@@ -121,4 +121,5 @@ def suite(data: Path) -> dict:
         "minmax_arm_thicker_sd5": (lambda: paper_scene("fig20_arm_thicker_sd5.toml"), "full"),
         "minmax_arm_thicker_sd1": (lambda: paper_scene("fig20_arm_thicker_sd1.toml"), "full"),
         "uv_camelHead28K_sd10": (lambda: paper_scene("fig18_uv_camelHead28K_sd10.toml"), "full"),
+        "modeling_dumpling": (lambda: paper_scene("fig01_dumpling.toml"), "full"),
     }

@@ -34,3 +34,32 @@ def winding_numbers(points: np.ndarray, vertices: np.ndarray, cells: np.ndarray)
         den = la * lb * lc + (a * b).sum(1) * lc + (b * c).sum(1) * la + (c * a).sum(1) * lb
         out[i] = 2.0 * np.arctan2(det, den).sum() / (4.0 * np.pi)
     return out
+
+
+_AXES = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [0, 0, 1.0], [0, 0, -1.0]])
+
+
+def shielded(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(k,) bool: whether every ray from a point along ±x, ±y, ±z hits a triangle of ``triangles`` (3D).
+
+    A body held in another's cavity (a dumpling's filling in its wrapper) is outside that body's material
+    (winding number 0) but shielded on all sides: hidden from a viewer outside. Möller–Trumbore ray–triangle
+    tests, vectorised over the triangles."""
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    out = np.ones(P.shape[0], dtype=bool)
+    for d in _AXES:
+        pvec = np.cross(d, e2)  # (m,3)
+        det = np.einsum("ij,ij->i", e1, pvec)
+        ok = np.abs(det) > 1e-300
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        for i in np.flatnonzero(out):
+            s = P[i] - a
+            u = np.einsum("ij,ij->i", s, pvec) * inv
+            q = np.cross(s, e1)
+            v = (q @ d) * inv
+            t = np.einsum("ij,ij->i", e2, q) * inv
+            hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+            out[i] = bool(hit.any())
+    return out

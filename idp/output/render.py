@@ -183,14 +183,18 @@ def render_frames_png(
     view: tuple[float, float] = (20, -60),
     size: tuple[int, int] = (1200, 600),
     up: str = "z",
+    views: list[tuple[float, float]] | None = None,
 ) -> None:
     """Render ``frames`` ([(title, x), ...], x (n, dim) global positions) side by side into one PNG.
 
     All panels share the camera (``view`` = (elevation, azimuth) in degrees, 3D only) and the
-    axis limits; ``size`` is the PNG size in pixels (width, height).
+    axis limits; ``size`` is the PNG size in pixels (width, height). ``views`` (3D): one camera per panel
+    instead, e.g. one shape seen from several sides.
     """
     if not frames:
         raise ValueError("render_frames_png needs at least one frame")
+    if views is not None and len(views) != len(frames):
+        raise ValueError(f"views: one (elevation, azimuth) per frame, got {len(views)} for {len(frames)} frames")
     need = check_parts(parts, dim)
     xs = []
     for title, x in frames:
@@ -217,7 +221,8 @@ def render_frames_png(
     axes, pts = [], []
     for k, ((title, _), x) in enumerate(zip(frames, xs, strict=True)):
         ax = fig.add_subplot(rows, cols, k + 1)
-        pts.append(_panel_3d(ax, parts, x, cam, cages) if dim == 3 else _panel_2d(ax, parts, x))
+        cam_k = _camera(views[k]) if dim == 3 and views is not None else cam
+        pts.append(_panel_3d(ax, parts, x, cam_k, cages) if dim == 3 else _panel_2d(ax, parts, x))
         ax.set_title(str(title), fontsize=11)
         ax.set_axis_off()
         axes.append(ax)

@@ -239,3 +239,27 @@ def test_remesh_without_the_mesher_names_the_extra(tmp_path, monkeypatch):
     res = run_stages(sc, tmp_path / "skip", progress=False)
     rec = res.stages[0]["objects"]["dough"]
     assert "skipped" in rec["remesh"]
+
+
+def test_final_folder_holds_only_the_objects_left_and_a_final_render(tmp_path):
+    # a first run whose last stage still has the floor; then the scene gains a stage that removes it
+    run_stages(_scene(output={"png": True, "obj": False}), tmp_path / "r", progress=False)
+    assert (tmp_path / "r" / "final" / "floor.vtu").exists()
+    stages = [
+        {"name": "drop", "steps": 3, "after": {"dough": "carry"}},
+        {"name": "settle", "steps": 2, "set": {"dough": {"material": {"youngs_modulus": 3e3}}}},
+        {"name": "alone", "steps": 1, "remove": ["floor"], "gravity": [0.0, 0.0, 0.0]},
+    ]
+    res = run_stages(
+        _scene(output={"png": True, "obj": False}, stages=stages),
+        tmp_path / "r",
+        progress=False,
+        resume=True,
+        force_resume=True,
+    )
+    assert sorted(p.name for p in (tmp_path / "r" / "final").glob("*.vtu")) == ["dough.vtu"]
+    assert set(res.final_shapes) == {"dough"}
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(tmp_path / "r" / "final" / "final.png")
+    assert img.shape[:2] == (500, 1500) and img[..., :3].var() > 1e-4

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import matplotlib.image as mpimg
 import numpy as np
+import pytest
 
 from idp.output.parts import Part
 from idp.output.render import render_frames_png
@@ -68,6 +69,21 @@ def test_render_3d(tmp_path: Path) -> None:
     # the ball's colour is present (bluish pixels: blue clearly above red)
     rgb = img[..., :3]
     assert ((rgb[..., 2] - rgb[..., 0]) > 0.15).mean() > 0.02
+
+
+def test_render_views_one_camera_per_panel(tmp_path: Path) -> None:
+    x, parts = ball_in_cage(2)
+    x[: parts[0].vertex_ids.size, 0] *= 2.0  # an elongated ball: a view along x differs from one across it
+    out = tmp_path / "views.png"
+    render_frames_png(
+        out, parts[:1], [("along y", x), ("along x", x)], dim=3, size=(600, 300), views=[(90.0, 0.0), (0.0, 0.0)]
+    )
+    img = _check_png(out, (600, 300))
+    blue = (img[..., 2] - img[..., 0]) > 0.15
+    left, right = blue[:, :300].sum(), blue[:, 300:].sum()
+    assert left > 1.3 * right or right > 1.3 * left  # the two cameras see different silhouettes
+    with pytest.raises(ValueError, match="one \\(elevation, azimuth\\) per frame"):
+        render_frames_png(out, parts, [("a", x)], dim=3, views=[(0.0, 0.0), (1.0, 1.0)])
 
 
 def test_render_2d(tmp_path: Path) -> None:
