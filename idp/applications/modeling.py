@@ -223,6 +223,12 @@ def _stage_scene(scene: Scene, stage: StageSpec, k: int, objects: list[SceneObje
         base["gravity"] = stage.gravity
     base.setdefault("output", {})["dir"] = out
     base["objects"] = objects
+    if scene.sticky is not None:  # links among this stage's objects only; none when fewer than two take part
+        present = scene.sticky.matches([ob.name for ob in objects])
+        if len(present) >= 2:
+            base["sticky"]["bodies"] = present
+        else:
+            base.pop("sticky", None)
     return Scene.model_validate(base)
 
 

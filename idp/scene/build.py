@@ -400,6 +400,8 @@ def build_scene(
         linear_terms=linear_terms,
     )
     system.conditions.extend(material_conditions)
+    if scene.sticky is not None:
+        _sticky(scene, parts, system)
     want_distortion = scene.output.distortion
     if want_distortion is None:
         want_distortion = bool(uv_objects) or any(b[0].material.power != 1.0 for b in bodies)
@@ -480,6 +482,28 @@ def build_scene(
         render_up=_up_axis(scene),
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
+
+
+def _sticky(scene, parts, system) -> None:
+    """`[sticky]`: a pair-spring term relinked before every step between the matched bodies' surface vertices."""
+    from idp.energies.pair_springs import PairSprings
+    from idp.stepper.sticky import StickyContact
+
+    st = scene.sticky
+    chosen = set(st.matches([p.name for p in parts]))
+    if system.contact is None or not system.contact.compiled or system.contact_pattern is None:
+        raise SceneError("sticky: sticky contact needs contact on, in 3D, with the compiled barrier")
+    verts, body = [], []
+    for k, p in enumerate(parts):
+        if p.name in chosen and p.surface.size:
+            v = np.unique(p.surface)
+            verts.append(v)
+            body.append(np.full(v.size, k, np.int64))
+    springs = PairSprings(system.dim, st.stiffness)
+    system.pair_terms.append(springs)
+    if len(verts) >= 2:
+        system.conditions.append(StickyContact(np.concatenate(verts), np.concatenate(body), st.distance, springs))
+    system.meta["sticky"] = {"bodies": sorted(chosen), "distance": st.distance, "stiffness": st.stiffness}
 
 
 def _up_axis(scene) -> str:

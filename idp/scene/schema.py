@@ -70,6 +70,7 @@ from idp.scene.schema_base import (
 )
 from idp.scene.shell_schema import FLOW_TOL_FRACTION, FlowConfig, ShellMaterial
 from idp.scene.stages_schema import AnchorSpec, RemeshSpec, StageObjectSettings, StageSpec, check_stages
+from idp.scene.sticky_schema import StickyConfig, check_sticky
 
 # ---------------------------------------------------------------------------------------------
 # Global sections
@@ -716,6 +717,7 @@ class Scene(_Model):
     flow: FlowConfig | None = None
     repair: RepairConfig | None = None
     gravity: list[Float] | None = None  # body force per unit mass (e.g. [0, -9.8, 0]); none = no gravity
+    sticky: StickyConfig | None = None  # opt-in weak springs between close bodies (outside the paper's energy)
     objects: list[SceneObject] = Field(default_factory=list)
     stages: list[StageSpec] = Field(default_factory=list)  # a multi-stage modeling scene (§7.5)
 
@@ -779,6 +781,7 @@ class Scene(_Model):
         probs.extend(layout_probs)
         vec("gravity", self.gravity)
         check_stages(self, probs)
+        check_sticky(self, probs)
         if not any(ob.kind in ("deformable", "shell") for ob in self.objects) and not self.stages:
             probs.append(("objects", "at least one deformable or shell object is required"))
         if self.flow is not None and not any(ob.kind == "shell" for ob in self.objects):

@@ -166,6 +166,8 @@ class StepSolver:
             diag = diag + c.penalty_hessian_diagonal()
         for t in s.linear_terms:
             g += s.h * t.gradient(x)
+        for t in s.pair_terms:
+            g += s.h * t.gradient(x)
         asm = s.assembler
         data = asm.start_data(diag[s.dof_map.free_dofs])
         for i, wt in enumerate(s.terms):  # element Hessians streamed into the matrix, never all held
@@ -183,11 +185,23 @@ class StepSolver:
         active = ev is not None and ev.num_active > 0
         if active:
             g[s.collision_dofs] += s.contact.gradient(ev)
+        pairs = [t for t in s.pair_terms if t.pairs.shape[0]]
         if s.contact_pattern is None:
             H = sp.csr_matrix((data, asm.indices, asm.indptr), shape=asm.shape)
             if active:
                 H = H + restrict_collision_hessian(s.contact.hessian(ev), s.collision_dof_to_free, s.dof_map.num_free)
+            for t in pairs:
+                free = s.dof_map.free_dofs
+                H = H + (s.h * t.hessian(x.shape[0]))[free][:, free]
             return g, H
+        if pairs:  # vertex-pair blocks beside the contact blocks (3D compiled barrier, checked when built)
+            width = 4 * s.dim
+            parts = [t.hessian_blocks(s.vertex_to_free, width, s.h) for t in pairs]
+            if active:
+                parts.insert(0, s.contact.hessian_blocks(ev, s.collision_vertex_to_free))
+            block_verts = np.concatenate([p[0] for p in parts])
+            blocks = np.concatenate([p[1] for p in parts])
+            return g, s.contact_pattern.assemble_blocks(data, block_verts, blocks)
         if not active:
             return g, s.contact_pattern.assemble(data)
         if s.contact.compiled:

@@ -61,6 +61,9 @@ class System:
     step_constraint: StepConstraint | None = None
     conditions: list = field(default_factory=list)
     linear_terms: list = field(default_factory=list)  # value(x)/gradient(x) only, e.g. −β xᵀN (no Hessian)
+    # terms over vertex pairs that change between steps (sticky links, :class:`idp.energies.pair_springs.PairSprings`):
+    # value, gradient and Hessian blocks that join the contact blocks
+    pair_terms: list = field(default_factory=list)
     # set by a condition for the step about to be solved: the inertia target x̃ of ½‖x − x̃‖²_M when it is not
     # the previous state (animation repair: the input frame), and whether every elastic term is at rest there
     inertia_target: np.ndarray | None = None
@@ -83,6 +86,8 @@ class System:
                 # collision-mesh vertex → free vertex (whole vertices are free or pinned here), −1 if not free
                 first = self.collision_dof_to_free.reshape(-1, self.dim)[:, 0]
                 self.collision_vertex_to_free = np.where(first >= 0, first // self.dim, -1).astype(np.int64)
+        first_dof = self.dof_map.global_to_free.reshape(-1, self.dim)[:, 0]
+        self.vertex_to_free = np.where(first_dof >= 0, first_dof // self.dim, -1).astype(np.int64)
         dyn = self.masses[: self.num_dynamic_vertices]
         self.average_mass = float(dyn[dyn > 0].mean()) if np.any(dyn > 0) else 1.0
 
@@ -108,13 +113,15 @@ class System:
     def elastic_value(self, x: np.ndarray) -> float:
         """E(x) without contact: Σ weight · term(x) over every element term, plus the linear terms."""
         v = sum(t.weight * t.term.value(x) for t in self.terms)
-        return float(v + sum(t.value(x) for t in self.linear_terms))
+        return float(v + sum(t.value(x) for t in self.linear_terms) + sum(t.value(x) for t in self.pair_terms))
 
     def elastic_gradient(self, x: np.ndarray) -> np.ndarray:
         g = np.zeros(x.size)
         for t in self.terms:
             g += t.weight * t.term.gradient(x)
         for t in self.linear_terms:
+            g += t.gradient(x)
+        for t in self.pair_terms:
             g += t.gradient(x)
         return g
 
