@@ -285,8 +285,8 @@ def build_scene(
         fixed.append(np.ones(n, dtype=bool))  # kinematic ones too: moved as a whole (stepper/dirichlet.py)
         if obj.motion is not None:
             kinematic.append((i, obj, ids))
-        else:
-            cage_volume += abs(enclosed_volume(verts, mesh.faces))
+        elif _encloses_deformables(verts, mesh.faces, chunks[:-1], num_dynamic):
+            cage_volume += abs(enclosed_volume(verts, mesh.faces))  # a cage: its fill fraction is reported
         offset += n
 
     x = np.ascontiguousarray(np.vstack(chunks), dtype=float)
@@ -482,6 +482,18 @@ def build_scene(
         render_up=_up_axis(scene),
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
+
+
+def _encloses_deformables(verts: np.ndarray, faces: np.ndarray, chunks: list[np.ndarray], num_dynamic: int) -> bool:
+    """Whether a static obstacle is a cage: it holds every deformable body (a sample of their vertices has winding
+    number 1 against it). A plate or a tool beside the bodies is not, and gets no fill fraction."""
+    from idp.mesh.containment import winding_numbers
+
+    if num_dynamic == 0:
+        return False
+    dyn = np.vstack(chunks)[:num_dynamic]
+    sample = dyn[:: max(1, dyn.shape[0] // 256)]
+    return bool(np.all(winding_numbers(sample, verts, faces) > 0.5))
 
 
 def _sticky(scene, parts, system) -> None:
