@@ -186,6 +186,30 @@ def _fixed_vertices(obj, i: int, verts: np.ndarray) -> np.ndarray:
     return pinned
 
 
+def _element_densities(obj, i: int, mesh, verts: np.ndarray) -> np.ndarray:
+    """(m,) density per element: the material's, then each ``density_regions`` entry over the elements whose
+    vertices its selection all picks (on the placed shape)."""
+    from idp.scene.build_handles import selection_from_spec
+
+    elements = mesh.elements
+    rho = np.full(elements.shape[0], float(obj.material.density))
+    for j, reg in enumerate(obj.density_regions):
+        key = f"objects[{i}] ({obj.name}).density_regions[{j}]"
+        try:
+            chosen = selection_from_spec(reg.select, getattr(mesh, "point_groups", None)).select(verts)
+        except IndexError as exc:
+            raise SceneError(f"{key}.select.indices: {exc}") from exc
+        except SceneError as exc:
+            raise SceneError(f"{key}: {exc}") from exc
+        picked = np.zeros(verts.shape[0], dtype=bool)
+        picked[chosen] = True
+        inside = picked[elements].all(axis=1)
+        if not inside.any():
+            raise SceneError(f"{key}: the selection holds no whole element ({chosen.size} vertices picked)")
+        rho[inside] = float(reg.density)
+    return rho
+
+
 def _vector(v, dim: int) -> np.ndarray:
     a = np.asarray(v, dtype=float)
     return np.full(dim, float(a)) if a.ndim == 0 else a
@@ -228,6 +252,7 @@ def build_scene(
     offset = 0
     shells: list[tuple[Any, np.ndarray, np.ndarray]] = []  # (object, global ids, global triangles)
     object_ids: dict[str, np.ndarray] = {}
+    densities: dict[str, np.ndarray] = {}  # per-element densities of bodies with density regions
     for i, obj, mesh, verts in deformables:
         n = verts.shape[0]
         ids = np.arange(offset, offset + n)
@@ -262,6 +287,8 @@ def build_scene(
             int(rest.growth_steps) if rest else 0,
         )
         bodies.append((obj, ids, elements, sched))
+        if obj.density_regions:
+            densities[obj.name] = _element_densities(obj, i, mesh, verts)
         fixed.append(_fixed_vertices(obj, i, verts))
         offset += n
     num_dynamic = offset
@@ -306,7 +333,7 @@ def build_scene(
             el.set_base_rest_frames(uvo.rest_frames, uvo.areas)
         if obj.rest_state is not None:  # rest frames (and plastic state) an earlier stage ended with
             rest_states[obj.name] = _apply_rest_state(obj, el)
-        masses += lumped_masses(N, elements, el.volumes, mat.density)
+        masses += lumped_masses(N, elements, el.volumes, densities.get(obj.name, mat.density))
         energies.append(Body(obj.name, ids, el, sched))
     shell_terms = _shell_terms(shells, x, masses)
     material_conditions = _material_conditions(scene, energies, parts, x, rest_states)

@@ -551,6 +551,14 @@ def _shapes(dim: int, role: str) -> str:
 # Objects and scene
 
 
+class DensityRegion(_Model):
+    """A region of a deformable body with its own density (paper §7.5: light flower heads on heavy stems): the
+    elements whose vertices ``select`` all picks get ``density`` (later regions win where they overlap)."""
+
+    select: SelectionSpec
+    density: PosFloat
+
+
 class SceneObject(_Model):
     """One mesh in the scene: a deformable body (tets in 3D, triangles in 2D), a shell (a triangle surface in 3D,
     closed or open) or a closed obstacle (static, or kinematic with ``motion``)."""
@@ -574,6 +582,7 @@ class SceneObject(_Model):
     handles: list[HandleSpec] = Field(default_factory=list)
     motion: KinematicSpec | None = None  # obstacles only: a kinematic (moving) obstacle
     plasticity: PlasticitySpec | None = None
+    density_regions: list[DensityRegion] = Field(default_factory=list)  # per-region density (deformables)
     material_stages: list[MaterialStageSpec] = Field(default_factory=list)
     rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
     # deformables: rest frames (and plastic state) saved by an earlier stage (.npz), in place of `mesh`'s shape
@@ -606,6 +615,8 @@ class SceneObject(_Model):
             for key in ("material_stages", "rest_scripts"):
                 if getattr(self, key):
                     probs.append((key, "not supported on shells"))
+        if self.density_regions and self.kind != "deformable":
+            probs.append(("density_regions", "only for deformable (volume) objects; a shell's density is `shell`'s"))
         if self.rest_state is not None and (self.kind != "deformable" or self.uv):
             probs.append(("rest_state", "only for deformable (volume) objects"))
         if self.uv and (self.kind != "deformable" or self.mesh is None or self.frame is not None):
@@ -761,6 +772,8 @@ class Scene(_Model):
                 _motion_vectors(f"{q}.motion", hd.motion, d, probs)
             if ob.motion is not None:
                 _motion_vectors(f"{p}.motion.motion", ob.motion.motion, d, probs)
+            for j, reg in enumerate(ob.density_regions):
+                _selection_vectors(f"{p}.density_regions[{j}].select", reg.select, vec)
             for j, rs in enumerate(ob.rest_scripts):
                 if isinstance(rs.rate, list):
                     vec(f"{p}.rest_scripts[{j}].rate", rs.rate)
@@ -861,6 +874,8 @@ class Scene(_Model):
 _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     Scene,
     SceneObject,
+    DensityRegion,
+    StickyConfig,
     TimeConfig,
     SolverConfig,
     ContactConfig,
