@@ -189,7 +189,7 @@ def render_frames_png(
 
     All panels share the camera (``view`` = (elevation, azimuth) in degrees, 3D only) and the
     axis limits; ``size`` is the PNG size in pixels (width, height). ``views`` (3D): one camera per panel
-    instead, e.g. one shape seen from several sides.
+    instead, e.g. one shape seen from several sides, each panel framing its own view.
     """
     if not frames:
         raise ValueError("render_frames_png needs at least one frame")
@@ -226,25 +226,28 @@ def render_frames_png(
         ax.set_title(str(title), fontsize=11)
         ax.set_axis_off()
         axes.append(ax)
-    allpts = np.concatenate(pts)
-    if allpts.size:
-        lo, hi = allpts.min(0), allpts.max(0)
-    else:
-        lo, hi = np.zeros(2), np.ones(2)
-    pad = 0.04 * max(float((hi - lo).max()), 1e-12)
-    lo, hi = lo - pad, hi + pad
-    # widen the shared limits to the panel's pixel aspect so "equal" needs no box shrinking
     pos = axes[0].get_position()
     panel_aspect = (pos.width * size[0]) / max(pos.height * size[1], 1e-9)
-    centre, half = (lo + hi) / 2, (hi - lo) / 2
-    if half[0] / half[1] < panel_aspect:
-        half[0] = half[1] * panel_aspect
-    else:
-        half[1] = half[0] / panel_aspect
-    for ax in axes:
-        ax.set_xlim(centre[0] - half[0], centre[0] + half[0])
-        ax.set_ylim(centre[1] - half[1], centre[1] + half[1])
-        ax.set_aspect("equal", adjustable="box")
+    # one set of limits for all panels (frames compared in one camera), or each its own (one shape, several views)
+    groups = [[k] for k in range(len(axes))] if views is not None else [list(range(len(axes)))]
+    for group in groups:
+        gpts = np.concatenate([pts[k] for k in group])
+        if gpts.size:
+            lo, hi = gpts.min(0), gpts.max(0)
+        else:
+            lo, hi = np.zeros(2), np.ones(2)
+        pad = 0.04 * max(float((hi - lo).max()), 1e-12)
+        lo, hi = lo - pad, hi + pad
+        # widen the limits to the panel's pixel aspect so "equal" needs no box shrinking
+        centre, half = (lo + hi) / 2, (hi - lo) / 2
+        if half[0] / half[1] < panel_aspect:
+            half[0] = half[1] * panel_aspect
+        else:
+            half[1] = half[0] / panel_aspect
+        for k in group:
+            axes[k].set_xlim(centre[0] - half[0], centre[0] + half[0])
+            axes[k].set_ylim(centre[1] - half[1], centre[1] + half[1])
+            axes[k].set_aspect("equal", adjustable="box")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")

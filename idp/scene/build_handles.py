@@ -75,7 +75,8 @@ def motion_from_spec(spec, key: str, dt: float) -> mo.Motion:
     if t == "rotate":
         return mo.Rotate(float(spec.degrees_per_second), center if center is not None else 0.0, _vec(spec.axis))
     if t == "scale":
-        return mo.Scale(_required_vec(spec.rate), center if center is not None else 0.0, spec.law)
+        about = None if spec.about == "selection" else (center if center is not None else 0.0)
+        return mo.Scale(_required_vec(spec.rate), about, spec.law)
     if t == "keyframes":
         keys = []
         for k in spec.keyframes:
@@ -90,6 +91,14 @@ def motion_from_spec(spec, key: str, dt: float) -> mo.Motion:
                 rv = ax / np.linalg.norm(ax) * math.radians(k.rotate.degrees)
             keys.append(mo.Keyframe(k.step * dt, tr, rv, np.asarray(k.scale, dtype=float)))
         return mo.Keyframes(keys, center if center is not None else 0.0, smooth=spec.interpolation == "smooth")
+    if t == "roll":
+        return mo.Roll(
+            _required_vec(spec.axis),
+            _required_vec(spec.direction),
+            _required_vec(spec.center),
+            float(spec.speed),
+            float(spec.pitch),
+        )
     # targets
     if spec.offset is not None:
         return mo.PathTargets(offset=_vec(spec.offset), quota=spec.quota, source=f"{key}.offset")

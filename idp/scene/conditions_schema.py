@@ -88,7 +88,7 @@ class KeyframeSpec(_Model):
     scale: Scale = 1.0
 
 
-MOTION_TYPES = ("fixed", "translate", "rotate", "scale", "keyframes", "targets")
+MOTION_TYPES = ("fixed", "translate", "rotate", "scale", "keyframes", "targets", "roll")
 
 
 class MotionSpec(_Model):
@@ -99,15 +99,20 @@ class MotionSpec(_Model):
     - ``rotate``: ``degrees_per_second`` about ``axis`` (3D) through ``center``;
     - ``scale``: factor 1 + ``rate``·t (scalar or per axis) about ``center``; ``law = "exponential"``: e^{rate·t},
       the same fraction per unit time (the authors' ``scaleVel = −0.1`` per step is rate = ln(0.9)/√h);
+      ``about = "selection"`` instead of ``center``: about the centre of the handle's bounding box (where it
+      started, or each step's with ``incremental``), as the authors' ``scaleVel`` does;
     - ``incremental = true`` (translate, rotate, scale): each step's targets are one step of the motion applied
       to where the vertices are at the step's start, so a blocked handle is not pushed further and further;
     - ``keyframes``: ``keyframes`` (at least two, increasing ``step``), ``interpolation`` linear or smooth,
       about ``center``;
     - ``targets``: final positions reached in ``quota`` steps (§4.3), either ``offset`` (added to the
-      start positions) or ``file`` (.npy/.npz: (k, d) final targets, or (F, k, d) one frame per step).
+      start positions) or ``file`` (.npy/.npz: (k, d) final targets, or (F, k, d) one frame per step);
+    - ``roll`` (3D): rolls a strip up like a carpet from its start edge at ``center``: ``speed`` (length per
+      second) of it along ``direction`` is wound onto the spiral r = ``pitch``·φ about ``axis``; the roll rises
+      on the ``axis`` × ``direction`` side (:class:`idp.stepper.motions.Roll`; the authors' rose).
     """
 
-    type: Literal["fixed", "translate", "rotate", "scale", "keyframes", "targets"] = "fixed"
+    type: Literal["fixed", "translate", "rotate", "scale", "keyframes", "targets", "roll"] = "fixed"
     velocity: list[Float] | None = None
     degrees_per_second: Float | None = None
     axis: list[Float] | None = None
@@ -121,6 +126,10 @@ class MotionSpec(_Model):
     offset: list[Float] | None = None
     file: Path | None = None
     quota: PosInt = 1
+    direction: list[Float] | None = None  # roll: the strip's length direction
+    speed: PosFloat | None = None  # roll: length wound per second
+    pitch: PosFloat | None = None  # roll: r = pitch·φ (layers 2π·pitch apart)
+    about: Literal["center", "selection"] = "center"  # scale: about `center`, or the selection's box centre
 
     @model_validator(mode="after")
     def _fields(self) -> MotionSpec:
@@ -131,6 +140,7 @@ class MotionSpec(_Model):
             "scale": ("rate",),
             "keyframes": ("keyframes",),
             "targets": (),
+            "roll": ("axis", "direction", "center", "speed", "pitch"),
         }[self.type]
         probs = [(k, f"required for type = {self.type!r}") for k in need if getattr(self, k) is None]
         allowed = set(need) | {"interpolation", "quota"}
@@ -140,13 +150,27 @@ class MotionSpec(_Model):
             "keyframes": {"center"},
             "targets": {"offset", "file"},
         }.get(self.type, set())
-        for k in ("velocity", "degrees_per_second", "axis", "center", "rate", "keyframes", "offset", "file"):
+        for k in (
+            "velocity",
+            "degrees_per_second",
+            "axis",
+            "center",
+            "rate",
+            "keyframes",
+            "offset",
+            "file",
+            "direction",
+            "speed",
+            "pitch",
+        ):
             if getattr(self, k) is not None and k not in allowed:
                 probs.append((k, f"not used by type = {self.type!r}"))
         if self.type == "targets" and (self.offset is None) == (self.file is None):
             probs.append(("", "type = 'targets' needs exactly one of `offset` or `file`"))
-        if self.incremental and self.type in ("targets", "keyframes", "fixed"):
+        if self.incremental and self.type in ("targets", "keyframes", "fixed", "roll"):
             probs.append(("incremental", f"not used by type = {self.type!r} (its targets are positions, not rates)"))
+        if self.about == "selection" and (self.type != "scale" or self.center is not None):
+            probs.append(("about", "'selection' is for type = 'scale' without a `center`"))
         if self.type != "scale" and self.law != "linear":
             probs.append(("law", "only used by type = 'scale'"))
         if self.type != "targets" and self.quota != 1:

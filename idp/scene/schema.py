@@ -690,6 +690,18 @@ def _motion_vectors(path: str, m: MotionSpec, d: int, probs: list[tuple[str, str
 
     vec("velocity", m.velocity)
     vec("center", m.center)
+    if m.type == "roll":
+        if d != 3:
+            probs.append((f"{path}.type", "'roll' is a 3D motion"))
+        else:
+            vec("axis", m.axis)
+            vec("direction", m.direction)
+            a, u = m.axis or [], m.direction or []
+            if len(a) == 3 and len(u) == 3:
+                an, un = math.sqrt(sum(v * v for v in a)), math.sqrt(sum(v * v for v in u))
+                dot = abs(sum(x * y for x, y in zip(a, u, strict=True)))
+                if an == 0 or un == 0 or dot >= (1 - 1e-9) * an * un:
+                    probs.append((f"{path}.direction", "must be non-zero and not parallel to `axis`"))
     vec("offset", m.offset)
     if isinstance(m.rate, list):
         vec("rate", m.rate)

@@ -73,16 +73,86 @@ class Scale(Motion):
     fixed fraction per unit time, the reference code's per-step ``scaleVel``); rate a scalar or per axis."""
 
     rate: np.ndarray
-    center: np.ndarray | float  # 0.0: the origin
+    center: np.ndarray | float | None  # 0.0: the origin; None: the centre of X's bounding box
     law: str = "linear"
 
     def targets(self, X: np.ndarray, t: float) -> np.ndarray:
-        c = np.asarray(self.center, dtype=float)
+        c = 0.5 * (X.min(axis=0) + X.max(axis=0)) if self.center is None else np.asarray(self.center, dtype=float)
         r = np.asarray(self.rate, dtype=float)
         f = np.exp(r * t) if self.law == "exponential" else 1.0 + r * t
         if np.any(f <= 0):
             raise ValueError(f"scale motion reached a non-positive factor {f} at t = {t:g}")
         return (X - c) * f + c
+
+
+def _spiral_arc(phi: np.ndarray, pitch: float) -> np.ndarray:
+    """Arc length of the Archimedean spiral r = pitch·φ from φ = 0: (pitch/2)(φ√(φ²+1) + asinh φ)."""
+    return 0.5 * pitch * (phi * np.sqrt(phi * phi + 1.0) + np.arcsinh(phi))
+
+
+@dataclass
+class Roll(Motion):
+    """Rolls a strip up like a carpet (3D; the authors' rose, Fig. 11): a length ``speed``·t of it, from its start
+    edge on, is wound onto the Archimedean spiral r = ``pitch``·φ (innermost turn at φ = 2π, radius 2π·pitch)
+    about an axis parallel to ``axis``; the rest of the strip stays where it was, tangent to the roll.
+
+    Strip coordinates of a start position X, measured from ``center`` (a point of the start edge on the strip's
+    mid-surface): s along ``direction`` (the strip's length), n along ``axis`` × ``direction`` (its thickness;
+    the roll rises on that side, so flip ``axis`` to roll the other way) and a along ``axis``. A point with
+    s ≤ speed·t goes to the spiral point of arc length s from the innermost turn, moved n inwards; a points keep
+    a. Layers lie 2π·pitch apart: keep that above the strip's thickness."""
+
+    axis: np.ndarray
+    direction: np.ndarray
+    center: np.ndarray
+    speed: float
+    pitch: float
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.axis, dtype=float)
+        u = np.asarray(self.direction, dtype=float)
+        if np.linalg.norm(a) == 0 or np.linalg.norm(u) == 0:
+            raise ValueError("roll: axis and direction must be non-zero")
+        a = a / np.linalg.norm(a)
+        u = u - (u @ a) * a
+        if np.linalg.norm(u) < 1e-9:
+            raise ValueError("roll: direction must not be parallel to axis")
+        if not (self.speed > 0 and self.pitch > 0):
+            raise ValueError("roll: speed and pitch must be positive")
+        self._a, self._u = a, u / np.linalg.norm(u)
+        self._w = np.cross(self._a, self._u)  # the strip's normal: the roll rises on this side
+
+    def targets(self, X: np.ndarray, t: float) -> np.ndarray:
+        if X.shape[1] != 3:
+            raise ValueError("roll: a 3D motion")
+        c = np.asarray(self.center, dtype=float)
+        rel = X - c
+        s, n, a = rel @ self._u, rel @ self._w, rel @ self._a
+        length = self.speed * max(t, 0.0)
+        wound = (s <= length) & (length > 0)
+        out = np.array(X, dtype=float, copy=True)  # the flat part stays put, exactly
+        if np.any(wound):
+            p = self.pitch
+            phi0 = 2.0 * math.pi
+            s0 = float(_spiral_arc(np.array(phi0), p))
+            # φ of arc length s0 + σ (σ ∈ [0, length]) by Newton on the closed form, started from r ≈ √(2 p σ)
+            sig = np.concatenate([s[wound], [length]])
+            phi = np.sqrt(phi0 * phi0 + 2.0 * sig / p)
+            for _ in range(50):
+                f = _spiral_arc(phi, p) - s0 - sig
+                phi = phi - f / (p * np.sqrt(phi * phi + 1.0))
+                if np.max(np.abs(f)) <= 1e-13 * max(1.0, length):
+                    break
+            q = p * phi[:, None] * np.stack([np.cos(phi), np.sin(phi)], axis=1)  # counter-clockwise outwards
+            dq = p * np.stack([np.cos(phi) - phi * np.sin(phi), np.sin(phi) + phi * np.cos(phi)], axis=1)
+            tang = dq / np.linalg.norm(dq, axis=1, keepdims=True)
+            inward = np.stack([-tang[:, 1], tang[:, 0]], axis=1)  # left of the tangent: towards the centre
+            # the rigid map taking the outer end (the last entry) to the junction (length, 0) with tangent +u
+            te = tang[-1]
+            R = np.array([[te[0], te[1]], [-te[1], te[0]]])
+            pts = (q[:-1] + n[wound][:, None] * inward[:-1] - q[-1]) @ R.T + np.array([length, 0.0])
+            out[wound] = c + pts[:, :1] * self._u + pts[:, 1:] * self._w + a[wound][:, None] * self._a
+        return out
 
 
 @dataclass
