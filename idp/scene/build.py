@@ -95,8 +95,18 @@ def _load_object_mesh(obj, dim: int, usd_prim: str | None = None) -> VolumeMesh 
         mesh = GENERATORS[obj.generate.shape](**obj.generate.params())
     elif obj.frame is not None:
         mesh = _sequence_frame(obj, None)
+    elif obj.tetrahedralize is not None:
+        mesh = _tetrahedralized(obj)
     else:
-        mesh = read_mesh(obj.mesh, kind=want)
+        try:
+            mesh = read_mesh(obj.mesh, kind=want)
+        except MeshError as exc:
+            if want == "volume" and dim == 3 and _is_triangle_surface(obj.mesh):
+                raise MeshError(
+                    f"{exc}; a deformable body can be filled from a closed surface with `tetrahedralize = {{}}` "
+                    '(needs pip install "idp[remesh]")'
+                ) from exc
+            raise
     if want == "volume" and not isinstance(mesh, VolumeMesh):
         raise MeshError(f"{mesh.source}: object {obj.name!r} is deformable but the mesh has no volume elements")
     if want == "surface" and not isinstance(mesh, SurfaceMesh):
@@ -107,6 +117,42 @@ def _load_object_mesh(obj, dim: int, usd_prim: str | None = None) -> VolumeMesh 
     if mesh.vertices.shape[1] != dim:
         raise MeshError(f"{mesh.source}: object {obj.name!r} is {mesh.vertices.shape[1]}D but the scene is {dim}D")
     return mesh
+
+
+def _is_triangle_surface(path) -> bool:
+    try:
+        m = read_mesh(path, kind="surface")
+    except MeshError:
+        return False
+    return isinstance(m, SurfaceMesh) and m.faces.shape[1] == 3 and m.vertices.shape[1] == 3
+
+
+def _tetrahedralized(obj) -> VolumeMesh:
+    """`tetrahedralize`: the object's closed surface file filled with tets (TetGen, the optional mesher)."""
+    from idp.errors import MesherUnavailableError
+    from idp.mesh.remesh import tetrahedralize_surface
+
+    surf = read_mesh(obj.mesh, kind="surface")
+    if not isinstance(surf, SurfaceMesh) or surf.faces.shape[1] != 3 or surf.vertices.shape[1] != 3:
+        raise MeshError(f"{surf.source}: `tetrahedralize` needs a 3D triangle surface")
+    spec = obj.tetrahedralize
+    try:
+        v, t = tetrahedralize_surface(
+            surf.vertices, surf.faces, quality=spec.quality, max_volume=spec.max_volume, source=surf.source
+        )
+    except MesherUnavailableError as exc:
+        raise MesherUnavailableError(
+            f"tetrahedralize: filling {surf.source} with tets needs the optional mesher; "
+            'install it with pip install "idp[remesh]"'
+        ) from exc
+    log.info(
+        "%s: %d surface vertices filled with %d tets (%d vertices)",
+        surf.source,
+        surf.vertices.shape[0],
+        t.shape[0],
+        v.shape[0],
+    )
+    return VolumeMesh(v, t, source=surf.source)
 
 
 @dataclass

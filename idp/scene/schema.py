@@ -551,6 +551,15 @@ def _shapes(dim: int, role: str) -> str:
 # Objects and scene
 
 
+class TetrahedralizeSpec(_Model):
+    """Fill a deformable object's closed triangle surface (`mesh` an OBJ/STL/PLY/...) with tets when the scene is
+    built, keeping its triangles exactly (TetGen; needs ``idp[remesh]``). ``quality``: radius-edge bound;
+    ``max_volume``: largest tet volume in the file's units before placement (none = no size bound)."""
+
+    quality: Annotated[float, Strict(), Field(ge=1.1, le=10.0)] = 1.414
+    max_volume: PosFloat | None = None
+
+
 class DensityRegion(_Model):
     """A region of a deformable body with its own density (paper §7.5: light flower heads on heavy stems): the
     elements whose vertices ``select`` all picks get ``density`` (later regions win where they overlap)."""
@@ -583,6 +592,7 @@ class SceneObject(_Model):
     motion: KinematicSpec | None = None  # obstacles only: a kinematic (moving) obstacle
     plasticity: PlasticitySpec | None = None
     density_regions: list[DensityRegion] = Field(default_factory=list)  # per-region density (deformables)
+    tetrahedralize: TetrahedralizeSpec | None = None  # deformables from a closed surface file
     material_stages: list[MaterialStageSpec] = Field(default_factory=list)
     rest_scripts: list[RestScriptSpec] = Field(default_factory=list)
     # deformables: rest frames (and plastic state) saved by an earlier stage (.npz), in place of `mesh`'s shape
@@ -615,6 +625,8 @@ class SceneObject(_Model):
             for key in ("material_stages", "rest_scripts"):
                 if getattr(self, key):
                     probs.append((key, "not supported on shells"))
+        if self.tetrahedralize is not None and (self.kind != "deformable" or self.mesh is None or self.uv):
+            probs.append(("tetrahedralize", "only for a deformable object whose `mesh` is a closed triangle surface"))
         if self.density_regions and self.kind != "deformable":
             probs.append(("density_regions", "only for deformable (volume) objects; a shell's density is `shell`'s"))
         if self.rest_state is not None and (self.kind != "deformable" or self.uv):
@@ -887,6 +899,7 @@ _MODEL_CLASSES: tuple[type[BaseModel], ...] = (
     Scene,
     SceneObject,
     DensityRegion,
+    TetrahedralizeSpec,
     StickyConfig,
     TimeConfig,
     SolverConfig,
