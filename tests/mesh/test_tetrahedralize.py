@@ -60,7 +60,7 @@ def test_a_scene_object_from_a_surface_file(tmp_path):
     s = ellipsoid_surface(radii=(0.5, 0.3, 0.4), subdivisions=3)
     path = tmp_path / "blob.obj"
     _write_obj(path, s.vertices, s.faces)
-    with pytest.raises(MeshError, match="tetrahedralize = {}"):
+    with pytest.raises(MeshError, match=r"tetrahedralize = \{\}"):
         build_scene(scene_from_dict(_scene(path)))
     built = build_scene(scene_from_dict(_scene(path, tetrahedralize={"quality": 1.5}, scale=2.0)))
     tets = built.system.bodies[0].elastic.elements
