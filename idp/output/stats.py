@@ -105,12 +105,14 @@ def _indent(text: str, pad: str) -> str:
 class StatsRecorder:
     """stats.json with run metadata, one record per step, and a summary; rewritten atomically after every step."""
 
-    def __init__(self, path: str | Path, meta: dict) -> None:
+    def __init__(self, path: str | Path, meta: dict, steps: list[dict] | None = None) -> None:
+        """``steps``: records kept from an interrupted run, in the file from its first write (a resumed run killed
+        before it had re-added them one by one would otherwise leave a file without them)."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._meta_text = json.dumps(to_jsonable(meta), allow_nan=False, indent=1)
-        self._steps: list[dict] = []
-        self._step_text: list[str] = []  # each record serialised once, when added
+        self._steps: list[dict] = [dict(r) for r in steps or []]
+        self._step_text: list[str] = [_dumps(r) for r in steps or []]  # each record serialised once, when added
         self._summary_text = "null"
         self._flush()
 

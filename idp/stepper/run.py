@@ -226,7 +226,7 @@ def run_simulation(
         log.info("resuming %s after step %d", out, start_step)
     if hasattr(writer, "resume") and start_step > 0:  # adopt the finished frames, drop any later or torn ones
         writer.resume(start_step, lambda frame: frame * math.sqrt(system.h))
-    stats = StatsRecorder(stats_path, meta)
+    stats = StatsRecorder(stats_path, meta, steps=previous)  # the finished steps stay in the file throughout
 
     x0 = system.x.copy()
     cert0 = certifier.check(x0)
@@ -236,8 +236,6 @@ def run_simulation(
     if start_step == 0:
         writer.write(0, x0, time=0.0)
     fill0 = _fill_fraction(system, x_initial)
-    for earlier_record in previous:
-        stats.add_step(earlier_record)
     if start_step == 0 or not any(r.get("initial") for r in previous):
         rec0: dict[str, Any] = {"step": start_step, "certificate": cert0.to_dict()}
         rec0["fill_fraction"] = _fill_fraction(system, x0)
