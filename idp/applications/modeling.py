@@ -75,7 +75,7 @@ def _render_final(scene: Scene, states: dict[str, ObjectState], shapes: dict[str
     from idp.mesh.surface import boundary_faces
     from idp.output.parts import Part
     from idp.output.render import render_frames_png
-    from idp.scene.build import _up_axis
+    from idp.scene.build import picture_up_axis
 
     try:
         parts, xs, n = [], [], 0
@@ -101,7 +101,7 @@ def _render_final(scene: Scene, states: dict[str, ObjectState], shapes: dict[str
         if scene.dim == 3:
             parts = _visible_parts(parts, x)
         if scene.dim == 3:
-            up = _up_axis(scene)
+            up = picture_up_axis(scene)
             frames = [("from above", x), ("oblique", x), ("from the side", x)]
             render_frames_png(
                 path, parts, frames, dim=3, up=up, views=[(70.0, -90.0), (15.0, -60.0), (15.0, 0.0)], size=(1500, 500)

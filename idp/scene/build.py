@@ -552,7 +552,7 @@ def build_scene(
         write_png=o.png,
         on_nonconvergence=s.on_nonconvergence,
         on_unmet_targets=scene.dirichlet.on_unmet,
-        render_up=_up_axis(scene),
+        render_up=picture_up_axis(scene),
     )
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
 
@@ -591,7 +591,7 @@ def _sticky(scene, parts, system) -> None:
     system.meta["sticky"] = {"bodies": sorted(chosen), "distance": st.distance, "stiffness": st.stiffness}
 
 
-def _up_axis(scene) -> str:
+def picture_up_axis(scene) -> str:
     """The axis drawn upwards in pictures: the scene's ``output.up``, or (auto) the axis most against gravity."""
     up = scene.output.up
     if up != "auto":
