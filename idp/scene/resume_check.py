@@ -66,6 +66,10 @@ def check_resume_scene(out: Path, resolved: dict[str, Any], *, force: bool = Fal
         log.warning("resuming %s without comparing scenes: %s is unreadable", out, path)
         return
     changed = [p for p in scene_differences(old, resolved) if p not in RESUMABLE_CHANGES]
+    if changed:  # keys a newer idp added at their defaults are no change: compare with the record read by this idp
+        upgraded = _upgraded(old, Path(out))
+        if upgraded is not None:
+            changed = [p for p in scene_differences(upgraded, resolved) if p not in RESUMABLE_CHANGES]
     if not changed:
         return
     shown = ", ".join(changed[:_SHOWN]) + (f" and {len(changed) - _SHOWN} more" if len(changed) > _SHOWN else "")
@@ -76,3 +80,14 @@ def check_resume_scene(out: Path, resolved: dict[str, Any], *, force: bool = Fal
         f"cannot resume {out}: the scene differs from the one the run was started with in {shown}. "
         "Run it into a new folder, restore those keys, or force the resume (--force)"
     )
+
+
+def _upgraded(old: dict[str, Any], base: Path) -> dict[str, Any] | None:
+    """The earlier run's resolved scene read by this version of idp (keys it added since then filled in with their
+    defaults), or None when that record no longer reads."""
+    from idp.scene.load import resolved_scene_dict, scene_from_dict
+
+    try:
+        return resolved_scene_dict(scene_from_dict(old, base_dir=base))
+    except Exception:  # a record the current schema refuses: compare as written
+        return None

@@ -38,3 +38,20 @@ def test_long_lists_of_changes_are_cut_short(tmp_path):
     (tmp_path / "scene.resolved.json").write_text(json.dumps({f"k{i}": i for i in range(30)}))
     with pytest.raises(SceneError, match="and 18 more"):
         check_resume_scene(tmp_path, {f"k{i}": -i - 1 for i in range(30)})
+
+
+def test_keys_added_by_a_newer_idp_at_their_defaults_are_no_change(tmp_path):
+    """A run started before a key existed (its record lacks it) resumes when the key is at its default; a real
+    change of an old key is still refused."""
+    from idp.scene.load import resolved_scene_dict, scene_from_dict
+
+    d = {"name": "s", "objects": [{"name": "ball", "generate": {"shape": "ball", "radius": 0.3, "resolution": 2}}]}
+    resolved = resolved_scene_dict(scene_from_dict(d))
+    old = json.loads(json.dumps(resolved))
+    assert old["objects"][0].pop("density_regions") == []  # as written by an idp without per-region density
+    (tmp_path / "scene.resolved.json").write_text(json.dumps(old))
+    check_resume_scene(tmp_path, resolved)
+    stiffer = json.loads(json.dumps(resolved))
+    stiffer["objects"][0]["material"]["youngs_modulus"] = 2e4
+    with pytest.raises(SceneError, match=r"objects\[0\]\.material\.youngs_modulus"):
+        check_resume_scene(tmp_path, stiffer)
