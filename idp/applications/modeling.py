@@ -119,11 +119,15 @@ def _visible_parts(parts: list, x: np.ndarray) -> list:
     from idp.mesh.containment import shielded
 
     keep = []
+    boxes = [(x[np.unique(p.surface)].min(axis=0), x[np.unique(p.surface)].max(axis=0)) for p in parts]
     for i, p in enumerate(parts):
         ids = np.unique(p.surface)
         sample = x[ids[:: max(1, ids.size // 64)]]
         hidden = any(
-            q.kind == "deformable" and j != i and bool(np.all(shielded(sample, x, q.surface)))
+            q.kind == "deformable"
+            and j != i
+            and bool(np.all(boxes[j][0] <= boxes[i][0]) and np.all(boxes[i][1] <= boxes[j][1]))  # cheap test first
+            and bool(np.all(shielded(sample, x, q.surface)))
             for j, q in enumerate(parts)
         )
         if not hidden:

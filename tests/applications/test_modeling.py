@@ -263,3 +263,37 @@ def test_final_folder_holds_only_the_objects_left_and_a_final_render(tmp_path):
 
     img = mpimg.imread(tmp_path / "r" / "final" / "final.png")
     assert img.shape[:2] == (500, 1500) and img[..., :3].var() > 1e-4
+
+
+def test_final_render_leaves_out_a_body_shut_inside_another():
+    from idp.applications.modeling import _visible_parts
+    from idp.mesh import generate as gen
+    from idp.mesh.surface import boundary_faces
+    from idp.output.parts import Part
+
+    outer, inner = gen.tet_ball(radius=1.0, resolution=3), gen.tet_ball(radius=0.5, resolution=2)
+    n = outer.vertices.shape[0]
+    # a wrapper with a cavity (its inner boundary reversed) around a filling in that cavity, and a ball beside them
+    wrapper_surface = np.vstack([boundary_faces(outer.elements), boundary_faces(inner.elements)[:, ::-1] + n])
+    filling = inner.vertices * 0.9
+    beside = inner.vertices + [3.0, 0.0, 0.0]
+    x = np.vstack([outer.vertices, inner.vertices, filling, beside])
+    m = inner.vertices.shape[0]
+    parts = [
+        Part("wrapper", "deformable", np.arange(n + m), outer.elements, wrapper_surface),
+        Part(
+            "filling",
+            "deformable",
+            np.arange(n + m, n + 2 * m),
+            inner.elements + n + m,
+            boundary_faces(inner.elements) + n + m,
+        ),
+        Part(
+            "beside",
+            "deformable",
+            np.arange(n + 2 * m, n + 3 * m),
+            inner.elements + n + 2 * m,
+            boundary_faces(inner.elements) + n + 2 * m,
+        ),
+    ]
+    assert [p.name for p in _visible_parts(parts, x)] == ["wrapper", "beside"]
