@@ -276,7 +276,7 @@ def test_final_render_leaves_out_a_body_shut_inside_another():
     # a wrapper with a cavity (its inner boundary reversed) around a filling in that cavity, and a ball beside them
     wrapper_surface = np.vstack([boundary_faces(outer.elements), boundary_faces(inner.elements)[:, ::-1] + n])
     filling = inner.vertices * 0.9
-    beside = inner.vertices + [3.0, 0.0, 0.0]
+    beside = inner.vertices + np.array([3.0, 0.0, 0.0])
     x = np.vstack([outer.vertices, inner.vertices, filling, beside])
     m = inner.vertices.shape[0]
     parts = [
