@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +50,17 @@ def scene_differences(old: Any, new: Any, prefix: str = "") -> list[str]:
     return [] if old == new and type(old) is type(new) else [prefix or "(the whole scene)"]
 
 
+def _appended_stage(path: str, old: dict[str, Any]) -> bool:
+    """``stages[k]`` (or a key inside it) for a stage after the earlier run's last: appending stages to a staged
+    run is no change to what it has done."""
+    m = re.match(r"stages\[(\d+)\]", path)
+    return m is not None and int(m.group(1)) >= len(old.get("stages") or [])
+
+
 def check_resume_scene(out: Path, resolved: dict[str, Any], *, force: bool = False) -> None:
     """SceneError naming the differing keys when ``resolved`` is not the scene the run in ``out`` was started
     with (``out/scene.resolved.json``); nothing when they agree, when there is no earlier scene, or with
-    ``force`` (then a warning)."""
+    ``force`` (then a warning). Stages appended after the earlier run's last stage are no change."""
     path = Path(out) / "scene.resolved.json"
     if not path.is_file():
         return
@@ -65,11 +73,17 @@ def check_resume_scene(out: Path, resolved: dict[str, Any], *, force: bool = Fal
             ) from None
         log.warning("resuming %s without comparing scenes: %s is unreadable", out, path)
         return
-    changed = [p for p in scene_differences(old, resolved) if p not in RESUMABLE_CHANGES]
+    changed = [
+        p for p in scene_differences(old, resolved) if p not in RESUMABLE_CHANGES and not _appended_stage(p, old)
+    ]
     if changed:  # keys a newer idp added at their defaults are no change: compare with the record read by this idp
         upgraded = _upgraded(old, Path(out))
         if upgraded is not None:
-            changed = [p for p in scene_differences(upgraded, resolved) if p not in RESUMABLE_CHANGES]
+            changed = [
+                p
+                for p in scene_differences(upgraded, resolved)
+                if p not in RESUMABLE_CHANGES and not _appended_stage(p, old)
+            ]
     if not changed:
         return
     shown = ", ".join(changed[:_SHOWN]) + (f" and {len(changed) - _SHOWN} more" if len(changed) > _SHOWN else "")

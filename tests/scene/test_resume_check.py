@@ -55,3 +55,11 @@ def test_keys_added_by_a_newer_idp_at_their_defaults_are_no_change(tmp_path):
     stiffer["objects"][0]["material"]["youngs_modulus"] = 2e4
     with pytest.raises(SceneError, match=r"objects\[0\]\.material\.youngs_modulus"):
         check_resume_scene(tmp_path, stiffer)
+
+
+def test_stages_appended_after_the_last_one_are_no_change(tmp_path):
+    old = {"time": {"steps": 5}, "stages": [{"name": "squash", "steps": 3}]}
+    (tmp_path / "scene.resolved.json").write_text(json.dumps(old))
+    check_resume_scene(tmp_path, {**old, "stages": [*old["stages"], {"name": "fold", "steps": 2}]})
+    with pytest.raises(SceneError, match=r"stages\[0\]\.steps"):
+        check_resume_scene(tmp_path, {**old, "stages": [{"name": "squash", "steps": 4}, {"name": "fold"}]})
