@@ -119,9 +119,10 @@ def _visible_parts(parts: list, x: np.ndarray) -> list:
     from idp.mesh.containment import shielded
 
     keep = []
-    boxes = [(x[np.unique(p.surface)].min(axis=0), x[np.unique(p.surface)].max(axis=0)) for p in parts]
+    surface_ids = [np.unique(p.surface) for p in parts]
+    boxes = [(x[ids].min(axis=0), x[ids].max(axis=0)) for ids in surface_ids]
     for i, p in enumerate(parts):
-        ids = np.unique(p.surface)
+        ids = surface_ids[i]
         sample = x[ids[:: max(1, ids.size // 64)]]
         hidden = any(
             q.kind == "deformable"

@@ -27,62 +27,45 @@ from idp.bench.reference import PAPER, REFERENCE
 from idp.bench.reference_run import REFERENCE_CASES, compare, find_reference, run_reference
 
 
+def _ball_in_box(name: str, growth_rate: float, growth_steps: int, **extra) -> dict:
+    """A generated ball growing inside a box (no data needed): the test tier's scenes."""
+    return {
+        "name": name,
+        "time": {"h": 0.0016},
+        "solver": {"newton_tol": 0.5},
+        "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [
+            {
+                "name": "ball",
+                "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+                "rest_shape": {"growth_rate": growth_rate, "growth_steps": growth_steps},
+            },
+            {
+                "name": "box",
+                "kind": "obstacle",
+                "generate": {"shape": "box_surface", "lo": [-0.45] * 3, "hi": [0.45] * 3, "resolution": 2},
+            },
+        ],
+        **extra,
+    }
+
+
 def _tiny_scene():
     """A generated scene (no data needed) used by the test suite to exercise this code path."""
     from idp.scene.load import scene_from_dict
 
-    return scene_from_dict(
-        {
-            "name": "tiny",
-            "time": {"h": 0.0016, "steps": 3},
-            "solver": {"newton_tol": 0.5},
-            "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
-            "output": {"obj": False, "vtu": False, "png": False},
-            "objects": [
-                {
-                    "name": "ball",
-                    "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
-                    "rest_shape": {"growth_rate": 0.2, "growth_steps": 3},
-                },
-                {
-                    "name": "box",
-                    "kind": "obstacle",
-                    "generate": {"shape": "box_surface", "lo": [-0.45] * 3, "hi": [0.45] * 3, "resolution": 2},
-                },
-            ],
-        }
-    )
+    d = _ball_in_box("tiny", 0.2, 3)
+    d["time"]["steps"] = 3
+    return scene_from_dict(d)
 
 
 def _tiny_staged_scene():
-    """A generated two-stage scene (grow, bake, push with a plate) exercising the staged bench record."""
+    """A generated two-stage scene (grow and bake, then settle) exercising the staged bench record."""
     from idp.scene.load import scene_from_dict
 
-    return scene_from_dict(
-        {
-            "name": "tiny_stages",
-            "time": {"h": 0.0016},
-            "solver": {"newton_tol": 0.5},
-            "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
-            "output": {"obj": False, "vtu": False, "png": False},
-            "objects": [
-                {
-                    "name": "ball",
-                    "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
-                    "rest_shape": {"growth_rate": 0.1, "growth_steps": 2},
-                },
-                {
-                    "name": "box",
-                    "kind": "obstacle",
-                    "generate": {"shape": "box_surface", "lo": [-0.45] * 3, "hi": [0.45] * 3, "resolution": 2},
-                },
-            ],
-            "stages": [
-                {"name": "grow", "steps": 2, "after": {"ball": "bake"}},
-                {"name": "settle", "steps": 1},
-            ],
-        }
-    )
+    stages = [{"name": "grow", "steps": 2, "after": {"ball": "bake"}}, {"name": "settle", "steps": 1}]
+    return scene_from_dict(_ball_in_box("tiny_stages", 0.1, 2, stages=stages))
 
 
 def scene_table() -> dict:
@@ -114,9 +97,6 @@ def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> 
     if scene.stages:  # a modeling scene: one run per stage, summed
         return _staged_result(name, out, res, wall)
     recs = res.step_records
-    its = [r["newton_iterations"] for r in recs]
-    total_its = max(sum(its), 1)
-    split = {k: v / total_its for k, v in res.summary["timings"].items()}
     from idp.output.stats import load_stats
 
     meta = load_stats(out / name / "stats.json")["meta"]
@@ -125,27 +105,12 @@ def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> 
         "vertices": meta["num_dynamic_vertices"],
         "obstacle_vertices": meta["num_vertices"] - meta["num_dynamic_vertices"],
         "tets": meta["num_elements"],
-        "steps": len(recs),
-        "wall_total": wall,
-        "wall_steps": sum(r["wall_time"] for r in recs),
-        "wall_per_step": [r["wall_time"] for r in recs],
-        "newton_iterations": sum(its),
-        "newton_per_step": its,
-        "seconds_per_iteration": sum(r["wall_time"] for r in recs) / total_its,
-        "per_iteration_split": split,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "contacts_per_step": [r["contacts"] for r in recs],
+        **_step_figures(recs, wall, res.summary["timings"]),
         "fill_per_step": [r["fill_fraction"] for r in recs],
         "fill_final": res.summary["fill_fraction"],
         "volume_ratio": (res.summary.get("flow") or {}).get("volume_ratio"),
         "repair": res.summary.get("repair"),  # animation repair: deviation, unchanged frames, crossings left
         "distortion": res.summary.get("distortion"),  # min-max runs: worst / p99 / mean Ψ_SD at the end
-        "certified_frames": sum(
-            1 for r in recs if r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"]
-        ),
-        "uncertified_frames": sum(
-            1 for r in recs if not (r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"])
-        ),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
         "cage_volume": meta.get("cage_volume"),
@@ -153,6 +118,28 @@ def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> 
     }
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
     return result
+
+
+def _step_figures(recs: list[dict], wall: float, timings: dict[str, float]) -> dict:
+    """The per-step figures of a bench record (steps, times, Newton iterations, contacts, certified frames) and
+    the per-iteration split of ``timings`` (seconds summed over the steps)."""
+    its = [r["newton_iterations"] for r in recs]
+    total_its = max(sum(its), 1)
+    certified = [r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"] for r in recs]
+    return {
+        "steps": len(recs),
+        "wall_total": wall,
+        "wall_steps": sum(r["wall_time"] for r in recs),
+        "wall_per_step": [r["wall_time"] for r in recs],
+        "newton_iterations": sum(its),
+        "newton_per_step": its,
+        "seconds_per_iteration": sum(r["wall_time"] for r in recs) / total_its,
+        "per_iteration_split": {k: v / total_its for k, v in timings.items()},
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "contacts_per_step": [r["contacts"] for r in recs],
+        "certified_frames": sum(certified),
+        "uncertified_frames": len(certified) - sum(certified),
+    }
 
 
 def _staged_result(name: str, out: Path, res, wall: float) -> dict:
@@ -181,28 +168,14 @@ def _staged_result(name: str, out: Path, res, wall: float) -> dict:
                 "remesh": {k: v.get("remesh") for k, v in (stage.get("objects") or {}).items() if v.get("remesh")},
             }
         )
-    its = [r["newton_iterations"] for r in recs]
-    total_its = max(sum(its), 1)
-    certified = [r["certificate"]["intersection_free"] and r["certificate"]["inversion_free"] for r in recs]
     result = {
         "scene": name,
         "vertices": max(p["vertices"] for p in per_stage),
         "tets": max(p["tets"] for p in per_stage),
         "stages": per_stage,
-        "steps": len(recs),
-        "wall_total": wall,
-        "wall_steps": sum(r["wall_time"] for r in recs),
-        "wall_per_step": [r["wall_time"] for r in recs],
-        "newton_iterations": sum(its),
-        "newton_per_step": its,
-        "seconds_per_iteration": sum(r["wall_time"] for r in recs) / total_its,
-        "per_iteration_split": {k: v / total_its for k, v in timings.items()},
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "contacts_per_step": [r["contacts"] for r in recs],
+        **_step_figures(recs, wall, timings),
         "fill_per_step": [None] * len(recs),
         "fill_final": None,
-        "certified_frames": sum(certified),
-        "uncertified_frames": len(certified) - sum(certified),
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "machine": describe(),
     }

@@ -293,6 +293,53 @@ def _steiner_off_surface(points: np.ndarray, surf_x: np.ndarray, surf_tri: np.nd
     return np.flatnonzero(~on)
 
 
+def _tetgen_fill(
+    tetgen: ModuleType,
+    points: np.ndarray,
+    tris: np.ndarray,
+    switches: str,
+    *,
+    remove_cavities: bool,
+    input_ids: np.ndarray,
+    prefix: str = "",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """TetGen's tets for the surface ``tris`` over ``points``, positively oriented, cavities emptied (when asked),
+    unused nodes dropped: (nodes, tets, point index -> node). ``input_ids`` name the points in errors (the caller's
+    vertex ids); ``prefix`` starts every error message (e.g. the file)."""
+    try:
+        with _quiet_stdout(), _in_scratch_dir():
+            out = tetgen.TetGen(points, tris.astype(np.int32)).tetrahedralize(switches=switches)
+    except RuntimeError as exc:
+        raise MeshError(
+            f"{prefix}TetGen could not tetrahedralize the boundary surface ({exc}); is it self-intersecting?"
+        ) from exc
+    nodes = np.asarray(out[0], dtype=np.float64)
+    tets = np.asarray(out[1], dtype=np.int64).reshape(-1, 4)
+    if tets.shape[0] == 0:
+        raise MeshError(f"{prefix}TetGen returned no tetrahedra")
+    flip = signed_volumes(nodes, tets) < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    to_new = _match_points(points, nodes)  # input point -> TetGen node
+    moved = np.flatnonzero(to_new < 0)
+    if moved.size:
+        raise MeshError(
+            f"{prefix}{moved.size} boundary vertex(es) moved or dropped by TetGen (duplicate positions?), "
+            f"first input vertex {int(input_ids[moved[0]])}"
+        )
+    if remove_cavities:
+        tets = _remove_filled_cavities(tets, to_new[tris])
+    used = np.unique(tets)
+    compact = np.full(nodes.shape[0], -1, dtype=np.int64)
+    compact[used] = np.arange(used.size)
+    nodes, tets, to_new = nodes[used], compact[tets], compact[to_new]
+    if np.any(to_new < 0):
+        raise MeshError(f"{prefix}a boundary vertex is not used by any tetrahedron of TetGen's mesh")
+    zero = np.flatnonzero(signed_volumes(nodes, tets) == 0.0)
+    if zero.size:
+        raise MeshError(f"{prefix}TetGen returned {zero.size} zero-volume tetrahedra")
+    return nodes, tets, to_new
+
+
 def remesh_volume(
     vertices: np.ndarray,
     elements: np.ndarray,
@@ -327,41 +374,9 @@ def remesh_volume(
     local[bverts] = np.arange(bverts.size)
     points = np.ascontiguousarray(v[bverts])
     tris = local[faces]
-    try:
-        with _quiet_stdout(), _in_scratch_dir():
-            out = tetgen.TetGen(points, tris.astype(np.int32)).tetrahedralize(switches=switches)
-    except RuntimeError as exc:
-        raise MeshError(
-            f"TetGen could not tetrahedralize the boundary surface ({exc}); is it self-intersecting?"
-        ) from exc
-    nodes = np.asarray(out[0], dtype=np.float64)
-    new_e = np.asarray(out[1], dtype=np.int64).reshape(-1, 4)
-    if new_e.shape[0] == 0:
-        raise MeshError("TetGen returned no tetrahedra")
-
-    vol = signed_volumes(nodes, new_e)
-    flip = vol < 0
-    new_e[flip] = new_e[flip][:, [0, 2, 1, 3]]
-
-    to_new = _match_points(points, nodes)  # local boundary index -> TetGen node
-    moved = np.flatnonzero(to_new < 0)
-    if moved.size:
-        raise MeshError(
-            f"{moved.size} boundary vertex(es) moved or dropped by TetGen (duplicate positions?), "
-            f"first input vertex {int(bverts[moved[0]])}"
-        )
-    if not refine_surface:
-        new_e = _remove_filled_cavities(new_e, to_new[tris])
-    used = np.unique(new_e)
-    compact = np.full(nodes.shape[0], -1, dtype=np.int64)
-    compact[used] = np.arange(used.size)
-    nodes, new_e, to_new = nodes[used], compact[new_e], compact[to_new]
-    if np.any(to_new < 0):
-        raise MeshError("a boundary vertex is not used by any tetrahedron of TetGen's mesh")
-
-    zero = np.flatnonzero(signed_volumes(nodes, new_e) == 0.0)
-    if zero.size:
-        raise MeshError(f"TetGen returned {zero.size} zero-volume tetrahedra")
+    nodes, new_e, to_new = _tetgen_fill(
+        tetgen, points, tris, switches, remove_cavities=not refine_surface, input_ids=bverts
+    )
     vol_in = float(signed_volumes(v, e).sum())
     vol_out = float(signed_volumes(nodes, new_e).sum())
     if abs(vol_out - vol_in) > VOLUME_RTOL * abs(vol_in):
@@ -435,27 +450,9 @@ def tetrahedralize_surface(
     points = np.ascontiguousarray(v[used])
     tris = local[f]
     switches = _switches(quality, max_volume, None, False)
-    try:
-        with _quiet_stdout(), _in_scratch_dir():
-            out = tetgen.TetGen(points, tris.astype(np.int32)).tetrahedralize(switches=switches)
-    except RuntimeError as exc:
-        raise MeshError(f"{source}: TetGen could not fill the surface ({exc}); is it self-intersecting?") from exc
-    nodes = np.asarray(out[0], dtype=np.float64)
-    tets = np.asarray(out[1], dtype=np.int64).reshape(-1, 4)
-    if tets.shape[0] == 0:
-        raise MeshError(f"{source}: TetGen returned no tetrahedra")
-    flip = signed_volumes(nodes, tets) < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
-    to_new = _match_points(points, nodes)
-    if np.any(to_new < 0):
-        raise MeshError(f"{source}: {int(np.sum(to_new < 0))} surface vertex(es) dropped by TetGen (duplicates?)")
-    tets = _remove_filled_cavities(tets, to_new[tris])
-    keep = np.unique(tets)
-    compact = np.full(nodes.shape[0], -1, dtype=np.int64)
-    compact[keep] = np.arange(keep.size)
-    nodes, tets, to_new = nodes[keep], compact[tets], compact[to_new]
-    if np.any(to_new < 0) or np.any(signed_volumes(nodes, tets) <= 0.0):
-        raise MeshError(f"{source}: TetGen's mesh leaves a surface vertex unused or has flat tetrahedra")
+    nodes, tets, to_new = _tetgen_fill(
+        tetgen, points, tris, switches, remove_cavities=True, input_ids=used, prefix=f"{source}: "
+    )
     vol_out = float(signed_volumes(nodes, tets).sum())
     if abs(vol_out - vol_in) > VOLUME_RTOL * abs(vol_in):
         raise MeshError(f"{source}: the tets' volume {vol_out:.17g} differs from the enclosed volume {vol_in:.17g}")

@@ -339,6 +339,7 @@ def build_scene(
         offset += n
     num_dynamic = offset
     cage_volume = 0.0
+    dynamic_sample = _sample(chunks) if num_dynamic else None  # cage test points (the deformables' vertices)
     # kinematic (moving) obstacles first, then the static ones
     obstacles.sort(key=lambda item: item[1].motion is None)
     kinematic = []
@@ -358,7 +359,7 @@ def build_scene(
         fixed.append(np.ones(n, dtype=bool))  # kinematic ones too: moved as a whole (stepper/dirichlet.py)
         if obj.motion is not None:
             kinematic.append((i, obj, ids))
-        elif _encloses_deformables(verts, mesh.faces, chunks[:-1], num_dynamic):
+        elif _encloses(verts, mesh.faces, dynamic_sample):
             cage_volume += abs(enclosed_volume(verts, mesh.faces))  # a cage: its fill fraction is reported
         offset += n
 
@@ -557,15 +558,19 @@ def build_scene(
     return BuiltScene(system, certifier, newton, run, dhat, n_pairs, meta, uv_objects)
 
 
-def _encloses_deformables(verts: np.ndarray, faces: np.ndarray, chunks: list[np.ndarray], num_dynamic: int) -> bool:
+def _sample(chunks: list[np.ndarray], count: int = 256) -> np.ndarray:
+    """About ``count`` of the vertices in ``chunks``, evenly strided."""
+    pts = np.vstack(chunks)
+    return pts[:: max(1, pts.shape[0] // count)]
+
+
+def _encloses(verts: np.ndarray, faces: np.ndarray, sample: np.ndarray | None) -> bool:
     """Whether a static obstacle is a cage: it holds every deformable body (a sample of their vertices has winding
     number 1 against it). A plate or a tool beside the bodies is not, and gets no fill fraction."""
     from idp.mesh.containment import winding_numbers
 
-    if num_dynamic == 0:
+    if sample is None:
         return False
-    dyn = np.vstack(chunks)[:num_dynamic]
-    sample = dyn[:: max(1, dyn.shape[0] // 256)]
     return bool(np.all(winding_numbers(sample, verts, faces) > 0.5))
 
 
