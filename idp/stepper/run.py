@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from idp import interrupts
+from idp._blas_threads import quiet_blas
 from idp._faults import kill_point
 from idp.contact.certificate import Certifier
 from idp.errors import CertificateError, SolverError
@@ -189,7 +190,23 @@ def run_simulation(
     """Run ``settings.steps`` artificial time steps from ``system.x``; write everything to ``out_dir``.
 
     ``writer``: where frames go (``write(step, x, time=..., cell_data=...)``, ``close()``); default the OBJ/VTU/PVD
-    :class:`~idp.output.frames.FrameWriter` under ``out_dir`` (animation repair writes the input's own form)."""
+    :class:`~idp.output.frames.FrameWriter` under ``out_dir`` (animation repair writes the input's own form).
+    numpy's and scipy's BLAS run one thread meanwhile (:mod:`idp._blas_threads`: their spinning workers would
+    take the cores of the element kernels and CCD when numpy was imported before idp)."""
+    with quiet_blas():
+        return _run_steps(system, newton, linear, certifier, out_dir, settings, meta, writer)
+
+
+def _run_steps(
+    system,
+    newton: NewtonSettings,
+    linear: LinearSolver,
+    certifier: Certifier,
+    out_dir: str | Path,
+    settings: RunSettings,
+    meta: dict | None,
+    writer,
+) -> RunResult:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
