@@ -38,6 +38,7 @@ def simulate(
     force_resume: bool = False,
     check_every_iterate: bool | None = None,
     targets: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None = None,
+    stop_after: int | str | None = None,
 ) -> RunResult:
     """Build the scene, run its artificial time steps, write frames/stats/picture, return the result.
 
@@ -46,7 +47,10 @@ def simulate(
     They are resolved like a scene's handles (feasible move, adaptive penalty, hold once met).
 
     ``resume``: continue the interrupted run in ``out_dir`` from its checkpoint; refused when the scene differs
-    from the one it was started with (other than ``time.steps`` / ``output.dir``) unless ``force_resume``."""
+    from the one it was started with (other than ``time.steps`` / ``output.dir``) unless ``force_resume``.
+
+    ``stop_after``: in a staged scene, the last stage to run (its name or index); a later ``resume=True`` call
+    goes on from there."""
     with announcing(progress):  # a first run says it is compiling kernels (numba), not silently waits
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
@@ -65,7 +69,11 @@ def simulate(
                 raise SceneError(
                     "simulate: `targets`, `check_every_iterate` and `steps` are per stage in a staged scene"
                 )
-            return run_stages(scene, out, progress=progress, resume=resume, force_resume=force_resume)  # type: ignore[return-value]
+            return run_stages(  # type: ignore[return-value]
+                scene, out, progress=progress, resume=resume, force_resume=force_resume, stop_after=stop_after
+            )
+        if stop_after is not None:
+            raise SceneError("simulate: `stop_after` names a stage, and this scene has no `stages`")
         # build first: bad input (a mesh, a selection, intersecting surfaces) fails before anything is written
         built = build_scene(
             scene, check_every_iterate=check_every_iterate, steps=steps, with_handles=targets is not None

@@ -133,6 +133,7 @@ def _cmd_run(args) -> int:
         resume=args.resume,
         force_resume=args.force,
         check_every_iterate=True if args.check_iterates else None,
+        stop_after=args.stop_after,
     )
     return _finish(result, Path(out))
 
@@ -394,6 +395,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     r.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")
     r.add_argument("--check-iterates", action="store_true", help="certify every Newton iterate, not only every frame")
+    r.add_argument(
+        "--stop-after",
+        metavar="STAGE",
+        help="staged scenes: stop after this stage (its name, or its index as in OUT/stages/NN_name); "
+        "--resume goes on from there",
+    )
     r.add_argument(
         "--max-memory",
         type=_memory_size,

@@ -136,6 +136,22 @@ def _visible_parts(parts: list, x: np.ndarray) -> list:
     return keep or parts
 
 
+def _stage_index(scene: Scene, stage: int | str | None) -> int | None:
+    """The index of a stage given by index or name (``stop_after``); an unknown one is an error listing them."""
+    if stage is None:
+        return None
+    names = [s.name for s in scene.stages]
+    listed = ", ".join(f"{k} ({n})" for k, n in enumerate(names))
+    if isinstance(stage, str) and not stage.isdigit():
+        if stage not in names:
+            raise SceneError(f"stop_after: no stage named {stage!r}; the stages are {listed}")
+        return names.index(stage)
+    k = int(stage)
+    if not 0 <= k < len(names):
+        raise SceneError(f"stop_after: stage index {k} is out of range; the stages are {listed}")
+    return k
+
+
 def _stage_dir(out: Path, k: int, stage: StageSpec) -> Path:
     return out / "stages" / f"{k:02d}_{stage.name}"
 
@@ -360,17 +376,19 @@ def run_stages(
     *,
     progress: bool = True,
     resume: bool = False,
-    stop_after: int | None = None,
+    stop_after: int | str | None = None,
     force_resume: bool = False,
 ) -> StagedResult:
     """Run every stage of ``scene`` into ``out_dir`` (``OUT/stages/NN_name/`` per stage, ``OUT/final/`` the last
-    shapes, ``OUT/stages.json`` the per-stage figures). ``stop_after``: run only stages 0..stop_after (then a
-    later ``resume=True`` call goes on from there)."""
+    shapes, ``OUT/stages.json`` the per-stage figures). ``stop_after``: run only the stages up to this one, given
+    by index (0 = the first, as in the stage folders ``NN_name``) or name (then a later ``resume=True`` call goes
+    on from there)."""
     from idp.api import run_built
     from idp.scene.build import build_scene
 
     if not scene.stages:
         raise SceneError("run_stages: the scene has no `stages`")
+    stop_index = _stage_index(scene, stop_after)
     out = make_output_dir(check_output_dir(out_dir))
     _check_mesher(scene)
     resolved = resolved_scene_dict(scene)
@@ -381,7 +399,7 @@ def run_stages(
     states: dict[str, ObjectState] = {ob.name: ObjectState(ob, 0) for ob in scene.objects}
     result = StagedResult(out)
     t0 = time.perf_counter()
-    last = len(scene.stages) - 1 if stop_after is None else min(stop_after, len(scene.stages) - 1)
+    last = len(scene.stages) - 1 if stop_index is None else stop_index
     for k, stage in enumerate(scene.stages[: last + 1]):
         sdir = _stage_dir(out, k, stage)
         for name in stage.remove:

@@ -293,3 +293,30 @@ def test_final_render_leaves_out_a_body_shut_inside_another():
         ),
     ]
     assert [p.name for p in _visible_parts(parts, x)] == ["wrapper", "beside"]
+
+
+def test_stop_after_by_name_from_the_cli_then_resume(tmp_path, capsys):
+    from idp.cli import main
+    from idp.scene.load import dump_scene_toml
+
+    path = tmp_path / "two.toml"
+    path.write_text(dump_scene_toml(_scene()))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "-o", str(out), "-q", "--stop-after", "drop"]) == 0
+    assert (out / "stages" / "00_drop" / "stage.json").exists() and not (out / "stages" / "01_settle").exists()
+    assert main(["run", str(path), "-o", str(out), "-q", "--resume"]) == 0
+    per = json.loads((out / "stages.json").read_text())["per_stage"]
+    assert [p["stage"] for p in per] == ["drop", "settle"] and [p["steps"] for p in per] == [3, 2]
+
+
+def test_stop_after_names_an_unknown_stage_or_a_scene_without_stages(tmp_path):
+    from idp.api import simulate
+
+    with pytest.raises(SceneError, match=r"no stage named 'fold'; the stages are 0 \(drop\), 1 \(settle\)"):
+        run_stages(_scene(), tmp_path / "a", progress=False, stop_after="fold")
+    with pytest.raises(SceneError, match=r"stage index 2 is out of range"):
+        run_stages(_scene(), tmp_path / "b", progress=False, stop_after=2)
+    flat = _scene(stages=[])
+    with pytest.raises(SceneError, match="has no `stages`"):
+        simulate(flat, tmp_path / "c", progress=False, stop_after=0)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()  # refused before writing
