@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import numpy as np
 import pytest
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
@@ -46,12 +49,21 @@ def test_quiet_blas_restores_after_an_exception():
         limits.restore_original_limits()
 
 
-def test_run_simulation_steps_under_quiet_blas(monkeypatch):
+def test_run_simulation_steps_under_quiet_blas(monkeypatch, tmp_path):
     limits = _two_threads_or_skip()
     seen = []
-    monkeypatch.setattr(run_module, "_run_steps", lambda *a: seen.append([lib.num_threads for lib in _numpy_blas()]))
+
+    def first_thing_the_run_makes(*args, **kwargs):  # the default frame writer: record, then stop the run
+        seen.append([lib.num_threads for lib in _numpy_blas()])
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(run_module, "FrameWriter", first_thing_the_run_makes)
+    system = SimpleNamespace(parts=[], dim=3, free_mask=np.zeros(3, dtype=bool))
     try:
-        run_module.run_simulation(None, None, None, None, "unused", None)
+        with pytest.raises(RuntimeError, match="stop here"):
+            run_module.run_simulation(
+                system, None, None, None, tmp_path, SimpleNamespace(write_obj=True, write_vtu=True)
+            )
         assert seen and all(n == 1 for n in seen[0])
         assert all(lib.num_threads >= 2 for lib in _numpy_blas())
     finally:

@@ -177,6 +177,7 @@ def _nonconvergence_reason(res, newton: NewtonSettings) -> str:
     return f"line search could not decrease the energy after {its}"
 
 
+@quiet_blas()  # numpy's and scipy's BLAS run one thread while stepping (idp._blas_threads: spinning workers)
 def run_simulation(
     system,
     newton: NewtonSettings,
@@ -190,23 +191,7 @@ def run_simulation(
     """Run ``settings.steps`` artificial time steps from ``system.x``; write everything to ``out_dir``.
 
     ``writer``: where frames go (``write(step, x, time=..., cell_data=...)``, ``close()``); default the OBJ/VTU/PVD
-    :class:`~idp.output.frames.FrameWriter` under ``out_dir`` (animation repair writes the input's own form).
-    numpy's and scipy's BLAS run one thread meanwhile (:mod:`idp._blas_threads`: their spinning workers would
-    take the cores of the element kernels and CCD when numpy was imported before idp)."""
-    with quiet_blas():
-        return _run_steps(system, newton, linear, certifier, out_dir, settings, meta, writer)
-
-
-def _run_steps(
-    system,
-    newton: NewtonSettings,
-    linear: LinearSolver,
-    certifier: Certifier,
-    out_dir: str | Path,
-    settings: RunSettings,
-    meta: dict | None,
-    writer,
-) -> RunResult:
+    :class:`~idp.output.frames.FrameWriter` under ``out_dir`` (animation repair writes the input's own form)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
