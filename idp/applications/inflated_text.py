@@ -28,7 +28,7 @@ def text_flow_scene(
     height: float = DEFAULT_HEIGHT,
     edge_length: float | None = None,
     beta: float = 5e-3,
-    gamma: float = 0.5,
+    gamma: float = 1.0,
     steps: int = 10,
     dhat: float = DEFAULT_DHAT,
     newton_tol: float | None = None,

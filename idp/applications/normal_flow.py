@@ -20,7 +20,7 @@ def flow_scene(
     mesh: str | Path,
     *,
     beta: float,
-    gamma: float = 0.25,
+    gamma: float = 0.5,
     steps: int = 10,
     dhat: float = DEFAULT_DHAT,
     name: str | None = None,

@@ -5,8 +5,8 @@
 * ``vertex_areas``: lumped (barycentric) vertex areas Σ_{t∋i} A_t/3.
 * ``cotangent_laplacian``: L_ij = ½ (cot α_ij + cot β_ij) for an edge ij, L_ii = -Σ_j L_ij: negative
   semidefinite, L·1 = 0, and L f = 0 at interior vertices of a flat mesh for linear f.
-* ``area_laplacian``: the umbrella-type graph Laplacian with edge weights from triangle areas, w_ij =
-  Σ_{t∋ij} A_t/3 (non-negative, so negative semidefinite); the weighting of the reference normal flow.
+* ``area_laplacian``: the element-area-weighted umbrella Laplacian, w_ij = Σ_{t∋ij} A_t/6 (non-negative, so
+  negative semidefinite): exactly the smoothing of the authors' normal flow, so γ is their smoothIntensity.
 * ``LaplacianSmoothing``: E = -γ ½ xᵀ L x (each coordinate) as an ``ElementTerm`` over triangles (9x9
   blocks, PSD per triangle without any clamping: see the class); ``weights`` picks cotangent or area.
 * ``NormalForce``: the linear term E = -β Σ_i N_i·x_i with N frozen (``update`` once per step);
@@ -77,11 +77,15 @@ def cotangent_weights(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray
 
 
 def area_weights(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(m,3) A_t/3 at every corner c of each triangle: the weight of edge (c+1, c+2) in that triangle, so an
-    interior edge gets (A_1+A_2)/3.  Non-negative, hence PSD smoothing blocks; the umbrella-type weighting
-    of the reference normal flow (taken from the initial shape and kept)."""
+    """(m,3) A_t/6 at every corner c of each triangle: the weight of edge (c+1, c+2) in that triangle, so an
+    interior edge gets (A_1+A_2)/6.  Non-negative, hence PSD smoothing blocks.
+
+    This is the paper's "element volume weighted Laplacian" as the authors' flow builds it (ipc-sim/IDP,
+    FEMShell's flow potential: each triangle adds (A_t/6)(x_j + x_k − 2x_i) to (Lx)_i, with A_t from the
+    initial shape and kept), so with idp's h = 1 the authors' step h·(−½xᵀLx) at their h = smoothIntensity s
+    is exactly γ = s."""
     X, T = _mesh(vertices, triangles)
-    a = np.linalg.norm(face_area_normals(X, T), axis=1) / 3.0
+    a = np.linalg.norm(face_area_normals(X, T), axis=1) / 6.0
     return np.repeat(a[:, None], 3, axis=1)
 
 
@@ -106,7 +110,7 @@ def cotangent_laplacian(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_m
 
 
 def area_laplacian(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_matrix:
-    """(n,n) area-weighted graph Laplacian, L_ij = Σ_{t∋ij} A_t/3 (negative semidefinite, rows sum to 0)."""
+    """(n,n) area-weighted graph Laplacian, L_ij = Σ_{t∋ij} A_t/6 (negative semidefinite, rows sum to 0)."""
     X, T = _mesh(vertices, triangles)
     return _laplacian_from_weights(T, area_weights(X, T), X.shape[0])
 
@@ -123,8 +127,8 @@ class LaplacianSmoothing(StencilTerm):
     cotangent Laplacian on obtuse meshes); blocks stay PSD either way.  ``project`` replaces K_t by its PSD
     part (3x3 eigen-decomposition), which only removes rounding-level negative eigenvalues.
 
-    ``weights="area"`` uses w_tc = A_t/3 instead (``area_weights``): the umbrella-type graph Laplacian of
-    the reference normal flow, whose weights come from the initial triangle areas and are not updated.
+    ``weights="area"`` uses w_tc = A_t/6 instead (``area_weights``): the umbrella-type graph Laplacian of
+    the authors' normal flow, whose weights come from the initial triangle areas and are not updated.
     They are non-negative, so ``clamp_negative`` changes nothing for them."""
 
     def __init__(
@@ -200,8 +204,9 @@ class NormalForce:
     ``update(x)`` sets N from the current shape; call it once per step (the normal flow recomputes the
     force from the current shape each step).  ``weighting="area"`` (default): N_i = Σ_{t∋i} (A_t/3) n̂_t,
     the area-weighted normal with the lumped (area/3) weighting.  ``weighting="lumped_unit"``: N_i = m_i n̂_i
-    with m_i = Σ_{t∋i} A_t/3 the lumped area and n̂_i the unit area-weighted vertex normal (the reference
-    flow's force: magnitude x lumped mass x unit normal), so |N_i| = m_i wherever n̂_i exists.
+    with m_i = Σ_{t∋i} A_t/3 the lumped area of the shape given to ``update`` and n̂_i the unit area-weighted
+    vertex normal, so |N_i| = m_i wherever n̂_i exists.  (The authors' force is m_i n̂_i with the masses of M,
+    which the normal flow sets with ``set_normals``.)
     ``set_normals`` sets N directly.  No stencils: ``element_dofs`` is empty and no Hessian block is ever
     handed to the sink."""
 

@@ -37,22 +37,22 @@ class FlowConfig(_Model):
 
     ``beta`` β: flow speed, > 0 outward, < 0 inward (with ``time.h`` = 1 and lumped-unit normals a free vertex
     moves about β per step). ``gamma`` γ ≥ 0: smoothing intensity. ``laplacian``: ``area`` (umbrella weights
-    from the initial triangle areas, as the authors' code) or ``cotangent``. ``normals``: ``mass`` (Nᵢ = mᵢ n̂ᵢ
-    with the masses of M: an unobstructed, unsmoothed vertex moves exactly β n̂ᵢ per step), ``lumped_unit`` (the
-    authors' force: Nᵢ = aᵢ n̂ᵢ with aᵢ the *current* lumped area, while M keeps the start areas, so the push of
-    a vertex grows with its triangles; on the cat a vertex whose area grew 10⁴-fold flew off) or ``area``
-    (Σ A_t n̂_t / 3). ``recompute``: when M and L are rebuilt from
+    Σ A_t/6 from the initial triangle areas, as the authors' code) or ``cotangent``. ``normals``: ``mass``
+    (Nᵢ = mᵢ n̂ᵢ with the masses of M, as the authors' force: an unobstructed, unsmoothed vertex moves exactly
+    β n̂ᵢ per step), ``lumped_unit`` (Nᵢ = aᵢ n̂ᵢ with aᵢ the *current* lumped area while M keeps the start
+    areas, so the push of a vertex grows with its triangles; on the cat a vertex whose area grew 10⁴-fold flew
+    off) or ``area`` (Σ A_t n̂_t / 3). ``recompute``: when M and L are rebuilt from
     the current shape — ``auto`` every step for negative flows (the paper does, for smoother sequences) and
     never for positive ones, or ``always`` / ``never``. ``fix_boundary``: pin every boundary vertex of open
     shells (default, as for the fonts).
 
-    The authors' parameters map as: magnitude → ``beta`` = magnitude (their dt = s and force magnitude/s² make
-    the per-step push equal to the magnitude) and smoothIntensity s → ``gamma`` = s² (their smoothing enters the
-    step with dt² = s²), with ``time.h`` = 1.  Measured on the cat (s = 0.5, 10 steps): γ = 0.25 grows the
-    volume x2.718 against the reference's x2.71; γ = s = 0.5 gives x2.42."""
+    The authors' parameters map exactly as: magnitude → ``beta`` = magnitude (their dt = s and force
+    magnitude·mᵢ·n̂ᵢ/s² make the per-step push equal to the magnitude) and smoothIntensity s → ``gamma`` = s
+    (their step adds s·(−½xᵀLx) with L the A_t/6-weighted umbrella Laplacian of ``laplacian = "area"``), with
+    ``time.h`` = 1.  Checked against the authors' code run on the same meshes (docs/normal-flow.md)."""
 
     beta: Annotated[float, Strict(), Field(allow_inf_nan=False)]
-    gamma: NonNegFloat = 0.25
+    gamma: NonNegFloat = 0.5
     laplacian: Literal["area", "cotangent"] = "area"
     normals: Literal["mass", "lumped_unit", "area"] = "mass"
     recompute: Literal["auto", "always", "never"] = "auto"

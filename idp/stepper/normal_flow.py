@@ -76,9 +76,9 @@ class NormalFlow:
             masses[self.vertices] = (self.mass_per_area * vertex_areas(x, self.faces))[self.vertices]
             system.set_masses(masses)
         if self.normals == "mass":
-            # Nᵢ = mᵢ n̂ᵢ with mᵢ the mass in M (not the current area): the push is then β n̂ at every vertex
-            # whatever its share of area.  Current areas against masses frozen at the start ("lumped_unit", the
-            # authors' force) let a vertex whose triangles grew (from 1e-7 to 1e-3 on the cat) take a push 10⁴
+            # Nᵢ = mᵢ n̂ᵢ with mᵢ the mass in M (not the current area), as the authors' force: the push is then
+            # β n̂ at every vertex whatever its share of area.  Current areas against masses frozen at the start
+            # ("lumped_unit") let a vertex whose triangles grew (from 1e-7 to 1e-3 on the cat) take a push 10⁴
             # times its inertia and fly off.
             unit = vertex_normals(x, self.faces, unit=True)
             self.force.set_normals(np.asarray(system.masses, dtype=float)[:, None] * unit)

@@ -37,7 +37,7 @@ def _sphere(name: str, center, radius=0.2, subdivisions=2) -> dict:
     }
 
 
-def _flow_doc(objects: list[dict], beta: float, steps: int, gamma: float = 0.1, **contact) -> dict:
+def _flow_doc(objects: list[dict], beta: float, steps: int, gamma: float = 0.2, **contact) -> dict:
     return {
         "name": "flow_test",
         "dim": 3,

@@ -91,17 +91,17 @@ def test_area_laplacian_properties(jitter: float) -> None:
     X[:, 2] = 0.1 * np.cos(2 * X[:, 1])
     w = area_weights(X, T)
     A = _face_areas(X, T)
-    np.testing.assert_allclose(w, np.repeat(A[:, None] / 3.0, 3, axis=1), rtol=1e-14)
+    np.testing.assert_allclose(w, np.repeat(A[:, None] / 6.0, 3, axis=1), rtol=1e-14)
     Ld = area_laplacian(X, T).toarray()
     np.testing.assert_allclose(Ld, Ld.T, atol=1e-14)
     np.testing.assert_allclose(Ld.sum(axis=1), 0.0, atol=1e-13)
     assert np.all(Ld - np.diag(np.diag(Ld)) >= 0)  # non-negative edge weights
     assert np.linalg.eigvalsh(Ld).max() <= 1e-12
-    # an interior edge gets (A_1 + A_2)/3, a boundary edge A_t/3
+    # an interior edge gets (A_1 + A_2)/6, a boundary edge A_t/6
     e = np.sort(np.concatenate([T[:, [1, 2]], T[:, [2, 0]], T[:, [0, 1]]]), axis=1)
     face = np.tile(np.arange(len(T)), 3)
     u, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
-    expected = np.bincount(inv.ravel(), weights=A[face] / 3.0)
+    expected = np.bincount(inv.ravel(), weights=A[face] / 6.0)
     np.testing.assert_allclose(Ld[u[:, 0], u[:, 1]], expected, rtol=1e-13)
     assert np.any(cnt == 1) and np.any(cnt == 2)
 
@@ -166,13 +166,13 @@ def test_area_weights_are_the_initial_areas_and_give_psd_blocks() -> None:
     X = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.2, 0.0], [1.0, -1.0, 0.0]])  # obtuse at vertex 2
     T = np.array([[0, 1, 2], [1, 0, 3]])
     S = LaplacianSmoothing(X, T, 1.0, weights="area")
-    np.testing.assert_allclose(S.edge_weights, [[0.2 / 3] * 3, [1.0 / 3] * 3], rtol=1e-14)
+    np.testing.assert_allclose(S.edge_weights, [[0.2 / 6] * 3, [1.0 / 6] * 3], rtol=1e-14)
     for b in S.element_hessians(X, project=False):
         assert np.linalg.eigvalsh(b).min() >= -1e-13 * np.abs(b).max()
     np.testing.assert_allclose(S.laplacian().toarray(), area_laplacian(X, T).toarray(), atol=1e-14)
     # set_weights recomputes areas from the given shape (here: everything scaled by 2 → areas x 4)
     S.set_weights(2.0 * X)
-    np.testing.assert_allclose(S.edge_weights, [[0.8 / 3] * 3, [4.0 / 3] * 3], rtol=1e-14)
+    np.testing.assert_allclose(S.edge_weights, [[0.8 / 6] * 3, [4.0 / 6] * 3], rtol=1e-14)
     with pytest.raises(ValueError, match="weights must be one of"):
         LaplacianSmoothing(X, T, 1.0, weights="uniform")
 
@@ -227,3 +227,22 @@ def test_lumped_unit_normal_force_points_outward_with_lumped_area_magnitude() ->
     assert np.all(np.linalg.norm(D.normals, axis=1) <= m * (1 + 1e-12))
     with pytest.raises(ValueError, match="weighting must be one of"):
         NormalForce(T, len(X), beta=1.0, weighting="unit")
+
+
+def test_area_smoothing_at_gamma_s_is_the_authors_smoothing_step_at_h_s() -> None:
+    """The authors' flow adds h·(−½xᵀL_a x) to the step at h = smoothIntensity s, with (L_a x)_i accumulating
+    (A_t/6)(x_j + x_k − 2x_i) over the triangles t = (i, j, k) of the start shape; with idp's h = 1 that is
+    γ = s with ``weights="area"``."""
+    rng = np.random.default_rng(7)
+    X, T = _flat(4, 0.08)
+    X[:, 2] = 0.1 * np.sin(3 * X[:, 0])
+    A = _face_areas(X, T)
+    x = X + 0.05 * rng.standard_normal(X.shape)
+    La_x = np.zeros_like(x)
+    for c in range(3):
+        i, j, k = T[:, c], T[:, (c + 1) % 3], T[:, (c + 2) % 3]
+        np.add.at(La_x, i, (A / 6.0)[:, None] * (x[j] + x[k] - 2.0 * x[i]))
+    s = 0.7
+    S = LaplacianSmoothing(X, T, s, weights="area")
+    np.testing.assert_allclose(S.gradient(x.ravel()), (-s * La_x).ravel(), atol=1e-13)
+    assert S.value(x.ravel()) == pytest.approx(-0.5 * s * np.sum(x * La_x), rel=1e-12)
