@@ -50,8 +50,9 @@ REFERENCE_CASES: dict[str, ReferenceCase] = {
     "hourglass_bunny": ReferenceCase("hourglass", ("0", "20", "30")),
     "hourglass_octocat": ReferenceCase("hourglass", ("3", "20", "30")),
 }
-"""Suite scene -> reference run. Scenes not listed have no counterpart in the authors' scripts (flows, repair,
-min-max, handles); the report says so. The authors' hourglass case 2 (octocat6K) is left out on purpose: it places
+"""Suite scene -> reference run. Scenes not listed have no counterpart in the authors' §6 scripts (flows, repair,
+min-max, handles); the report says so (flows are compared by ``bench/reference_flow.py``, which drives the
+authors' shell flow). The authors' hourglass case 2 (octocat6K) is left out on purpose: it places
 an unscaled octocat (volume ≈ 24,000) in a cage of volume ≈ 0.05, crossing it from the start, which idp refuses."""
 
 
