@@ -43,10 +43,6 @@ class FlowCase:
     frames: int
     scene: str
 
-    @property
-    def closed(self) -> bool:
-        return not self.mesh.startswith("font_") and self.mesh != "hand"
-
 
 CASES: dict[str, FlowCase] = {
     "cat": FlowCase("cat", 0.5, 5e-3, 10, "fig12_cat.toml"),
@@ -61,33 +57,29 @@ CASES: dict[str, FlowCase] = {
 }
 
 
-def surface_measures(path: Path) -> tuple[float, float]:
-    """(signed enclosed volume, area) of a triangle OBJ."""
+def growth(first: Path, last: Path) -> tuple[str, float]:
+    """("volume", V_last/V_first) for a closed surface, else ("area", A_last/A_first), from two triangle OBJs."""
     import meshio
 
-    m = meshio.read(path)
-    v = np.asarray(m.points, dtype=float)
-    f = np.asarray(m.cells_dict["triangle"], dtype=np.int64)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
-    area = float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum() / 2.0)
-    return volume, area
+    from idp.mesh.differential import face_area_normals
+    from idp.mesh.surface import boundary_edges, enclosed_volume
 
-
-def _ratio(case: FlowCase, first: Path, last: Path) -> float:
-    (v0, a0), (v1, a1) = surface_measures(first), surface_measures(last)
-    return v1 / v0 if case.closed else a1 / a0
+    meshes = [meshio.read(p) for p in (first, last)]
+    faces = np.asarray(meshes[0].cells_dict["triangle"], dtype=np.int64)
+    points = [np.asarray(m.points, dtype=float) for m in meshes]
+    if len(boundary_edges(faces)) == 0:
+        return "volume", enclosed_volume(points[1], faces) / enclosed_volume(points[0], faces)
+    area = [float(np.linalg.norm(face_area_normals(x, faces), axis=1).sum()) for x in points]
+    return "area", area[1] / area[0]
 
 
 def _run_child(cmd: list[str], env: dict[str, str], log: Path) -> tuple[float, float, int]:
-    """Run ``cmd``; (process wall s, peak RSS MB, return code)."""
+    """Run ``cmd``; (process wall s, peak RSS MB, exit code)."""
     t0 = time.perf_counter()
     with open(log, "w") as fh:
         proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return wall, usage.ru_maxrss / 1024.0, proc.returncode
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -182,7 +174,7 @@ def run_once(which: str, name: str, case: FlowCase, reference: Path, data: Path,
         raise RuntimeError(f"{which} run of {name} failed (rc {rc}):\n{tail}")
     rec = json.loads(result.read_text())
     rec.update(process_wall_s=wall, peak_rss_mb=rss)
-    rec["ratio"] = _ratio(case, Path(rec.pop("first")), Path(rec.pop("last")))
+    rec["measure"], rec["ratio"] = growth(Path(rec.pop("first")), Path(rec.pop("last")))
     return rec
 
 
@@ -221,7 +213,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args.output.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="idp-flow-ref-"))
-    report: dict = {"machine": _machine(), "runs_per_code": args.runs, "scenes": {}}
+    from idp.bench import machine
+
+    report: dict = {"machine": machine.describe(), "runs_per_code": args.runs, "scenes": {}}
     previous = args.output / "flow_reference.json"
     if previous.exists():  # scenes of an earlier invocation into the same folder stay (re-measured ones replaced)
         report["scenes"] = json.loads(previous.read_text()).get("scenes", {})
@@ -247,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
                 "frames": case.frames,
             },
             "idp_scene": f"idp/scenes/paper/{case.scene}",
-            "measure": "volume" if case.closed else "area",
+            "measure": runs["idp"][0]["measure"],
             "runs": runs,
             "speedup_median": _median(runs["reference"], "process_wall_s") / _median(runs["idp"], "process_wall_s"),
             "speedup_per_run": per_run,
@@ -258,21 +252,9 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _machine() -> str:
-    import platform
-
-    model = next(
-        (
-            ln.split(":", 1)[1].strip()
-            for ln in Path("/proc/cpuinfo").read_text().splitlines()
-            if ln.startswith("model name")
-        ),
-        platform.processor(),
-    )
-    return f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
-
-
 def _table(report: dict) -> str:
+    from idp.bench.machine import summary as machine_summary
+
     rows = [
         "| scene | idp process / stepping (s) | reference process / stepping (s) | speed-up (per run) "
         "| Newton its idp / ref | ratio idp / ref | peak RSS MB idp / ref |",
@@ -289,7 +271,8 @@ def _table(report: dict) -> str:
             f"| {_median(i, 'peak_rss_mb'):.0f} / {_median(r, 'peak_rss_mb'):.0f} |"
         )
     return (
-        f"Machine: {report['machine']}; {report['runs_per_code']} runs of each code, alternating.\n\n"
+        "  \n".join(machine_summary(report["machine"]))
+        + f"\n\n{report['runs_per_code']} runs of each code, alternating.\n\n"
         + "\n".join(rows)
         + "\n"
     )
