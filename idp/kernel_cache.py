@@ -142,8 +142,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel(
             "idp.contact._broad_phase",
             "_run",
-            "(float64[:, ::1], float64[:, ::1], boolean, int32[:, ::1], int32[:, ::1], int64, float64, int64, float64,"
-            " int64, int64, int64)",
+            "(float64[:, ::1], float64[:, ::1], boolean, int32[:, ::1], int32[:, ::1], int64, uint8[::1], float64,"
+            " int64, float64, int64, int64, int64)",
             8.8,
         ),
         Kernel(
@@ -206,7 +206,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "idp.contact.ccd_filter",
             "_bounds",
             "(float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], float64,"
-            " int64, float64[::1], float64[::1], float64[::1])",
+            " float64, int64, float64[::1], float64[::1], float64[::1], float64[::1])",
             4.0,
         ),
         Kernel(

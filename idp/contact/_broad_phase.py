@@ -8,7 +8,7 @@ V0, and also at V1 for a linear sweep). A pair is reported iff, on every axis,
 ``lo_a <= hi_b + inflation and lo_b <= hi_a + inflation``, evaluated literally (``hi + inflation``
 is rounded once and stored), so a brute force implementing the same expression gets the same set.
 Never reported: a face with one of its own vertices, two edges sharing a vertex, and pairs whose
-vertices are all static (id >= num_dynamic).
+vertices are all static (id >= num_dynamic, or marked still for the query).
 
 Algorithm: a dense uniform grid over the region the dynamic primitives reach, cell edge = 1.2 x
 the mean largest box side of the dynamic edges + inflation. Every primitive is binned (parallel,
@@ -66,9 +66,10 @@ _EMPTY = np.empty((0, 2), dtype=np.int32)
 
 
 @njit(cache=True, parallel=True)
-def _boxes(V0, V1, sweep, E, F, nd, infl, nt):  # pragma: no cover
+def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     """Per primitive g (vertices, then edges, then faces): lo, H = hi + infl, kind (0/1 dynamic/
-    static vertex, 2/3 edge, 4/5 face), ri = (vertex ids, padded with -1; own id).
+    static vertex, 2/3 edge, 4/5 face; a vertex is dynamic when its id < nd and ``still`` is 0 for it, an edge
+    or face when one of its vertices is), ri = (vertex ids, padded with -1; own id).
     ext[t] = this chunk's (min dynamic lo (3), max dynamic H (3), sum of the dynamic edges'
     largest box side, their count, the same for the dynamic faces, 1 if it saw a non-finite
     coordinate, 1 if it saw a vertex id outside [0, nv)); kcnt[t] = its count per kind."""
@@ -103,7 +104,7 @@ def _boxes(V0, V1, sweep, E, F, nd, infl, nt):  # pragma: no cover
                 ri[g, 0] = g
                 ri[g, 1] = -1
                 ri[g, 2] = -1
-                d = g < nd
+                d = g < nd and still[g] == 0
             elif g < nv + ne:
                 k = 2
                 i = g - nv
@@ -123,7 +124,8 @@ def _boxes(V0, V1, sweep, E, F, nd, infl, nt):  # pragma: no cover
                     if v < 0 or v >= nv:
                         bad_ids = 1.0
                         ri[g, j] = 0
-                    d = d or v < nd
+                    else:
+                        d = d or (v < nd and still[v] == 0)
             ri[g, 3] = i
             for a in range(3):
                 v = ri[g, 0]
@@ -443,13 +445,15 @@ def _pack(buf, at, counts):  # pragma: no cover
 
 
 @njit(cache=True)
-def _run(V0, V1, sweep, E, F, nd, infl, threads, scale, cells_per_prim, chunks_per_thread, spare):  # pragma: no cover
+def _run(  # pragma: no cover
+    V0, V1, sweep, E, F, nd, still, infl, threads, scale, cells_per_prim, chunks_per_thread, spare
+):
     """The whole query; returns (fv, ee, status): status 1 = non-finite coordinates, 2 = vertex id
     out of range."""
     nv = V0.shape[0]
     n = nv + E.shape[0] + F.shape[0]
     nt = max(1, min(threads, n // 2048 + 1))
-    lo, H, kind, ri, ext, kcnt = _boxes(V0, V1, sweep, E, F, nd, infl, nt)
+    lo, H, kind, ri, ext, kcnt = _boxes(V0, V1, sweep, E, F, nd, still, infl, nt)
     org = np.empty(3)
     size = np.empty(3)
     if ext[:, 11].max() > 0:
@@ -525,6 +529,7 @@ def surface_candidates(
     faces: np.ndarray,
     inflation: float,
     num_dynamic: int,
+    still: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Broad-phase candidates of a 3D triangle surface.
 
@@ -532,7 +537,11 @@ def surface_candidates(
     the boxes then covering both. edges (ne, 2), faces (nf, 3): vertex ids. A pair is reported
     iff on every axis ``lo_a <= hi_b + inflation and lo_b <= hi_a + inflation`` (so every pair
     closer than ``inflation`` is); pairs sharing a vertex and pairs whose vertices are all static
-    (id >= num_dynamic) are left out.
+    (id >= num_dynamic, or marked in ``still``) are left out.
+
+    ``still``: optional (nv,) bool, vertices that do not move in the query at hand (Dirichlet-held vertices of
+    a Newton step): pairs made only of static or still vertices cannot change their distance, so the barrier
+    and CCD need not see them.
 
     Returns (fv, ee): fv (m, 2) int32 rows [face id, vertex id]; ee (k, 2) int32 rows
     [edge a, edge b] with a < b. Each pair appears once; the row order is deterministic but not
@@ -555,6 +564,12 @@ def surface_candidates(
     E = _as_index(edges, 2, "edges")
     F = _as_index(faces, 3, "faces")
     nd = max(0, min(int(num_dynamic), nv))
+    if still is None:
+        still_u8 = np.zeros(nv, dtype=np.uint8)
+    else:
+        still_u8 = np.ascontiguousarray(still, dtype=np.uint8)
+        if still_u8.shape != (nv,):
+            raise ValueError(f"still must be ({nv},) per vertex, got shape {still_u8.shape}")
     if nd == 0:  # nothing is dynamic: no pair can be reported
         for a, name in ((E, "edges"), (F, "faces")):
             if a.size and (int(a.min()) < 0 or int(a.max()) >= nv):
@@ -567,6 +582,7 @@ def surface_candidates(
         E,
         F,
         nd,
+        still_u8,
         inflation,
         numba.get_num_threads(),
         _CELL_SCALE,

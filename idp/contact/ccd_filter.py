@@ -85,7 +85,9 @@ def _distance(X, S, point_triangle):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def _bounds_range(i0, i1, V0, V1, faces, edges, fv, ee, keep, advances, dist, speed, first):  # pragma: no cover
+def _bounds_range(  # pragma: no cover - compiled
+    i0, i1, V0, V1, faces, edges, fv, ee, keep, keep2, advances, dist, speed, first, first2
+):
     X = np.empty((4, 3))
     X0 = np.empty((4, 3))  # the pair's vertices at the start of the move
     S = np.empty((4, 3))
@@ -118,11 +120,15 @@ def _bounds_range(i0, i1, V0, V1, faces, edges, fv, ee, keep, advances, dist, sp
             dist[i] = 0.0
             speed[i] = np.inf
             first[i] = 0.0
+            if keep2 > 0.0:
+                first2[i] = 0.0
             continue
         dist[i] = d0
         speed[i] = m
         if m == 0.0:
             first[i] = np.inf  # no relative motion: the distance is constant
+            if keep2 > 0.0:
+                first2[i] = np.inf
             continue
         # conservative advancement towards keep·d0: from a gap g at t the gap stays above keep·d0 until
         # t + (g − slack − keep·d0) / M (slack: rounding of a computed gap)
@@ -130,6 +136,10 @@ def _bounds_range(i0, i1, V0, V1, faces, edges, fv, ee, keep, advances, dist, sp
         target = keep * d0
         t = (d0 - slack - target) / m
         first[i] = _advance(X0, D, X, S, pt, t, target, slack, m, advances, 1.0)
+        if keep2 > 0.0:  # the same for a second narrow phase's keep, from the same start
+            target = keep2 * d0
+            t = (d0 - slack - target) / m
+            first2[i] = _advance(X0, D, X, S, pt, t, target, slack, m, advances, 1.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -206,7 +216,7 @@ def _refine(idx, V0, V1, faces, edges, fv, ee, keep, advances, limit, dist, spee
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _bounds(V0, V1, faces, edges, fv, ee, keep, advances, dist, speed, first):  # pragma: no cover - compiled
+def _bounds(V0, V1, faces, edges, fv, ee, keep, keep2, advances, dist, speed, first, first2):  # pragma: no cover
     n = fv.shape[0] + ee.shape[0]
     for ch in prange((n + _CHUNK - 1) // _CHUNK):
         _bounds_range(
@@ -219,10 +229,12 @@ def _bounds(V0, V1, faces, edges, fv, ee, keep, advances, dist, speed, first):  
             fv,
             ee,
             keep,
+            keep2,
             advances,
             dist,
             speed,
             first,
+            first2,
         )
 
 
@@ -234,17 +246,21 @@ def move_bounds(
     fv: np.ndarray,
     ee: np.ndarray,
     rescaling: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(d(0), M, t) of every candidate (face–vertex rows [face, vertex] first, then edge–edge rows [edge, edge]) for
-    the linear move V0 → V1: its distance at V0, the largest relative displacement of a vertex of one primitive
+    second_rescaling: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """(d(0), M, t, t₂) of every candidate (face–vertex rows [face, vertex] first, then edge–edge rows [edge, edge])
+    for the linear move V0 → V1: its distance at V0, the largest relative displacement of a vertex of one primitive
     against a vertex of the other, and a fraction of the move before which its distance provably stays above
     (1 − ``rescaling``)·d(0) (conservative advancement, at most ADVANCES distance evaluations; ≥ 1: the whole
-    move)."""
+    move). t₂: the same for ``second_rescaling`` (a second narrow phase the caller may choose once it knows d(0)),
+    computed in the same pass; None when not asked for."""
     n = fv.shape[0] + ee.shape[0]
     dist, speed, first = np.empty(n), np.empty(n), np.empty(n)
+    first2 = np.empty(n) if second_rescaling is not None else np.empty(0)
+    keep2 = 1.0 - second_rescaling if second_rescaling is not None else 0.0
     if n:
-        _bounds(V0, V1, faces, edges, fv, ee, 1.0 - rescaling, ADVANCES, dist, speed, first)
-    return dist, speed, first
+        _bounds(V0, V1, faces, edges, fv, ee, 1.0 - rescaling, keep2, ADVANCES, dist, speed, first, first2)
+    return dist, speed, first, (first2 if second_rescaling is not None else None)
 
 
 def refine(
@@ -257,12 +273,12 @@ def refine(
     fv: np.ndarray,
     ee: np.ndarray,
     rescaling: float,
-    bounds: tuple[np.ndarray, np.ndarray, np.ndarray],
+    bounds: tuple,
 ) -> np.ndarray:
     """Continue the conservative advancement of the candidates ``idx`` (at most REFINE_ADVANCES more distance
     evaluations each, up to fraction ``limit``), updating their ``first`` in ``bounds`` (from :func:`move_bounds`);
     returns those still below ``limit``."""
-    dist, speed, first = bounds
+    dist, speed, first = bounds[0], bounds[1], bounds[2]
     _refine(idx, V0, V1, faces, edges, fv, ee, 1.0 - rescaling, REFINE_ADVANCES, limit, dist, speed, first)
     return idx[first[idx] < limit]
 

@@ -121,6 +121,7 @@ class ContactModel:
         self._excluded_ee = np.zeros(0, dtype=np.int64)
         self.num_dynamic_collision_vertices = n_dyn_cm
         self._move_bounds: tuple | None = None  # (sweep candidates, d(0), M) of the last filtered CCD
+        self._still: np.ndarray | None = None  # collision-mesh vertices held still in the Newton step at hand
         if self.compiled:
             from idp.contact import compiled_barrier
             from idp.contact._broad_phase import surface_candidates
@@ -150,7 +151,7 @@ class ContactModel:
         its cross vertex pairs are filtered), the compiled barrier by dropping their candidates."""
         vs = self.surface_positions(x)
         if self.compiled:
-            fv, ee = self._candidates(vs, None)
+            fv, ee = self._candidates(vs, None, every_pair=True)
         else:
             fv = ee = None
         tol2 = float(tolerance) ** 2
@@ -196,6 +197,28 @@ class ContactModel:
         full = self.to_full
         return [([int(full[i]) for i in a], [int(full[i]) for i in b]) for a, b in pairs]
 
+    # -- vertices held still during a Newton step --------------------------------
+    def hold_still(self, vertices: np.ndarray | None) -> None:
+        """Full-mesh vertex mask (n,) of vertices that do not move until the next call (a Newton step's held
+        Dirichlet vertices, §4.3), or None. Until then the compiled barrier's collision sets and CCD leave out
+        every pair whose vertices are all still or static: its distance cannot change, so its barrier term is a
+        constant of the step (its gradient lies only on held DOFs) and it cannot collide. The mannequin's
+        prescribed head holds 92 % of the ~464,000 pairs within d̂ of the repair (measured on Kick frame 1).
+        The step's energy then omits that constant, so energies are comparable only between calls with the same
+        mask (the Newton loop re-evaluates when its held set changes). Valid only while no obstacle vertex moves in
+        the step either (obstacle vertices count as static here; the Newton loop sets no mask when its constraint
+        moves tools). The ipctk barrier path (2D) ignores it."""
+        if vertices is None or not self.compiled:
+            self._still = None
+            return
+        mask = np.asarray(vertices, dtype=bool)[self.to_full]
+        self._still = mask if mask.any() else None
+
+    @property
+    def still(self) -> np.ndarray | None:
+        """Collision-mesh vertex mask set by :meth:`hold_still` (None: every vertex may move)."""
+        return self._still
+
     def _filter_excluded(self, fv: np.ndarray, ee: np.ndarray, nv: int) -> tuple[np.ndarray, np.ndarray]:
         """Candidates without the excluded touching pairs (:meth:`exclude_touching`)."""
         if self._excluded_fv.size and fv.size:
@@ -234,20 +257,55 @@ class ContactModel:
             c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
         return ContactEvaluation(c, vs, len(c))
 
-    def _candidates(self, v0: np.ndarray, v1: np.ndarray | None):
+    def any_within_dhat(self, x: np.ndarray) -> bool:
+        """Whether some pair (of those :meth:`evaluate` would see) is closer than d̂ at x, without building the
+        collision set (the compiled barrier classifies the candidates and stops there)."""
+        if not self.compiled:
+            return self.evaluate(x).num_active > 0
+        vs = self.surface_positions(x)
+        fv, ee = self._candidates(vs, None)
+        n = fv.shape[0] + ee.shape[0]
+        if n == 0:
+            return False
+        ctype, sqd, eps = np.empty(n, np.int64), np.empty(n), np.empty(n)
+        self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
+        return bool(np.any(sqd < self.dhat**2))
+
+    def _candidates(
+        self, v0: np.ndarray, v1: np.ndarray | None, *, every_pair: bool = False, still: np.ndarray | None = None
+    ):
+        """Broad-phase (fv, ee) candidates within d̂ (of the sweep v0 → v1 when v1 is given), without the pairs
+        of still vertices (``still``, default those of :meth:`hold_still`) unless ``every_pair``, and without
+        excluded touching pairs."""
         fv, ee = self._surface_candidates(
-            v0, v1, self._edges, self._faces, self.dhat, self.num_dynamic_collision_vertices
+            v0,
+            v1,
+            self._edges,
+            self._faces,
+            self.dhat,
+            self.num_dynamic_collision_vertices,
+            None if every_pair else (self._still if still is None else still),
         )
         if self._excluded_fv.size or self._excluded_ee.size:
             fv, ee = self._filter_excluded(fv, ee, v0.shape[0])
         return fv, ee
 
-    def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray):
+    def sweep_candidates(self, x0: np.ndarray, x1: np.ndarray, *, moving_only: bool = False):
         """Broad-phase candidates of the linear sweep x0 → x1, boxes inflated by d̂: every pair that comes
         within d̂ anywhere on the segment is in the set. Used for CCD and the line-search trials' collision sets
-        (the compiled barrier returns (fv, ee) arrays, the ipctk barrier ipctk ``Candidates``)."""
+        (the compiled barrier returns (fv, ee) arrays, the ipctk barrier ipctk ``Candidates``). ``moving_only``
+        (compiled barrier; for CCD alone, not for energies along the sweep): also leave out the pairs whose
+        vertices all stay where they are (x0 = x1), which cannot collide — unless an obstacle vertex moves (the
+        broad phase never pairs two obstacle vertices, so a moving tool is found only against body vertices
+        counted as moving)."""
         if self.compiled:
-            return self._candidates(self.surface_positions(x0), self.surface_positions(x1))
+            v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
+            still = np.all(v0 == v1, axis=1)
+            if not moving_only or not still[self.num_dynamic_collision_vertices :].all():
+                return self._candidates(v0, v1)
+            if self._still is not None:
+                still |= self._still
+            return self._candidates(v0, v1, still=still)
         cand = ipctk.Candidates()
         cand.build(self.mesh, self.surface_positions(x0), self.surface_positions(x1), self.dhat, self.broad_phase())
         return cand
@@ -365,7 +423,7 @@ class ContactModel:
         x0: np.ndarray,
         x1: np.ndarray,
         candidates=None,
-        current_min_distance: float = np.inf,
+        current_min_distance: float | None = np.inf,
         ev: ContactEvaluation | None = None,
     ) -> float:
         """Largest α in [0, 1] such that the linear move x0 → x0 + α(x1 − x0) is collision-free (CCD).
@@ -374,46 +432,87 @@ class ContactModel:
         minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the additive CCD is used for that
         query, and the nearly touching pairs are advanced conservatively with exact distances
         (:mod:`idp.contact.near_contact_ccd`; additive CCD alone is not provably conservative there), or, without
-        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).  ``ev``: the collision
-        set at x0 (evaluated here when needed and not given).
+        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).
+        ``current_min_distance``: the smallest gap at x0 that decides this (the Newton loop's active pairs); None:
+        the smallest gap among the candidates that move relative to each other (measured here, without building a
+        collision set: the feasible moves of step constraints). ``ev``: the collision set at x0 (evaluated here
+        when needed and not given).
 
         With the compiled barrier, ``candidates`` are the (fv, ee) arrays of :meth:`sweep_candidates` (found here
         when not given) and the narrow phase runs only on those that can come close before the step found so far
         (:meth:`_filtered_ccd`); otherwise ipctk's broad phase (or ipctk ``Candidates``) and narrow phase."""
         v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
-        ccd = self._ccd
-        near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < NEAR_CONTACT * self.dhat
-        if near_contact:
-            ccd = self._fallback_ccd
-            self.ccd_fallbacks += 1
-        if self.compiled:
-            if candidates is None:
-                candidates = self._candidates(v0, v1)
-            fv, ee = candidates
-            alpha = self._filtered_ccd(v0, v1, candidates, ccd)
-        elif candidates is not None:
-            alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
-        else:
-            alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
-        if near_contact and self.compiled:
-            from idp.contact.near_contact_ccd import conservative_step, near_pairs
+        if not self.compiled:
+            if current_min_distance is None:
+                ev = ev if ev is not None else self.evaluate(x0)
+                current_min_distance = self.min_distance(ev)
+            ccd, near_contact = self._choose_ccd(current_min_distance)
+            if candidates is not None:
+                alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
+            else:
+                alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
+            if near_contact:
+                alpha = min(alpha, self._near_pair_step_bound(v0, v1, ev if ev is not None else self.evaluate(x0)))
+            return alpha
+        from idp.contact import ccd_filter
 
-            pairs, is_pt = near_pairs(v0, self._edges, self._faces, fv, ee, NEAR_CONTACT * self.dhat)
+        if candidates is None:
+            candidates = self._candidates(v0, v1)
+        fv, ee = candidates
+        rescaling = float(self._ccd.conservative_rescaling)
+        if current_min_distance is None:  # which narrow phase is known only after d(0): bound for both in one pass
+            fallback = float(self._fallback_ccd.conservative_rescaling)
+            dist, speed, first, first_fallback = ccd_filter.move_bounds(
+                v0, v1, self._faces, self._edges, fv, ee, rescaling, fallback
+            )
+            moving = speed > 0.0
+            current_min_distance = float(dist[moving].min()) if moving.any() else np.inf
+        else:
+            bounds4 = ccd_filter.move_bounds(v0, v1, self._faces, self._edges, fv, ee, rescaling)
+            dist, speed, first, first_fallback = bounds4
+        ccd, near_contact = self._choose_ccd(current_min_distance)
+        if ccd is not self._ccd:  # the fallback's own rescaling decides which pairs its narrow phase must see
+            if first_fallback is None:
+                first_fallback = ccd_filter.move_bounds(
+                    v0, v1, self._faces, self._edges, fv, ee, float(ccd.conservative_rescaling)
+                )[2]
+            first = first_fallback
+        bounds = (dist, speed, first)
+        alpha = self._filtered_ccd(v0, v1, candidates, ccd, bounds)
+        if near_contact:
+            from idp.contact.near_contact_ccd import candidate_pairs, conservative_step
+
+            # the candidates closer than 1e-4·d̂ that move relative to each other (d(0) from the CCD bounds)
+            near = np.flatnonzero((bounds[0] < NEAR_CONTACT * self.dhat) & (bounds[1] > 0.0))
+            pairs, is_pt = candidate_pairs(self._edges, self._faces, fv, ee, near)
             alpha = conservative_step(v0, v1, pairs, is_pt, alpha_max=alpha, keep=NEAR_KEEP)
-        elif near_contact:
-            alpha = min(alpha, self._near_pair_step_bound(v0, v1, ev if ev is not None else self.evaluate(x0)))
         return alpha
 
-    def _filtered_ccd(self, v0: np.ndarray, v1: np.ndarray, candidates: tuple[np.ndarray, np.ndarray], ccd) -> float:
+    def _choose_ccd(self, current_min_distance: float):
+        """(narrow phase, near contact): the additive fallback when Tight Inclusion would meet a gap below
+        1e-4·d̂ (see :meth:`max_collision_free_step`)."""
+        near_contact = self._ccd_name == "tight_inclusion" and current_min_distance < NEAR_CONTACT * self.dhat
+        if near_contact:
+            self.ccd_fallbacks += 1
+            return self._fallback_ccd, True
+        return self._ccd, False
+
+    def _filtered_ccd(
+        self,
+        v0: np.ndarray,
+        v1: np.ndarray,
+        candidates: tuple[np.ndarray, np.ndarray],
+        ccd,
+        bounds: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> float:
         """Collision-free step of the move v0 → v1 over the sweep ``candidates`` (fv, ee), with the narrow phase
         ``ccd`` run only on the candidates that can come close before the step found so far
-        (:mod:`idp.contact.ccd_filter`). Keeps the candidates' distance and closing-speed bounds for
-        :meth:`line_search_candidates`."""
+        (:mod:`idp.contact.ccd_filter`; ``bounds`` from its ``move_bounds`` with ``ccd``'s rescaling). Keeps the
+        candidates' distance and closing-speed bounds for :meth:`line_search_candidates`."""
         from idp.contact import ccd_filter
 
         fv, ee = candidates
         rescaling = float(ccd.conservative_rescaling)
-        bounds = ccd_filter.move_bounds(v0, v1, self._faces, self._edges, fv, ee, rescaling)
         self._move_bounds = (candidates, bounds[0], bounds[1])
         order, first = ccd_filter.ccd_order(bounds[2])
         nf = fv.shape[0]

@@ -105,20 +105,36 @@ def _advance_all(V0, dV, pairs, is_point_triangle, alpha_max, keep, max_advances
         out[i] = _advance_pair(V0, dV, pairs[i], is_point_triangle[i], alpha_max, keep, max_advances)
 
 
+def candidate_pairs(
+    edges: np.ndarray, faces: np.ndarray, fv: np.ndarray, ee: np.ndarray, which: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The broad-phase candidates ``which`` (indices into fv rows then ee rows, as the compiled broad phase returns
+    them) as ((k, 4) vertex ids, (k,) is_point_triangle)."""
+    which = np.asarray(which, dtype=np.int64)
+    nf = fv.shape[0]
+    f_sel = np.asarray(fv, dtype=np.int64).reshape(-1, 2)[which[which < nf]]
+    e_sel = np.asarray(ee, dtype=np.int64).reshape(-1, 2)[which[which >= nf] - nf]
+    F = np.asarray(faces, dtype=np.int64)
+    E = np.asarray(edges, dtype=np.int64)
+    pairs = np.empty((f_sel.shape[0] + e_sel.shape[0], 4), dtype=np.int64)
+    pairs[: f_sel.shape[0], 0] = f_sel[:, 1]
+    pairs[: f_sel.shape[0], 1:] = F[f_sel[:, 0]]
+    pairs[f_sel.shape[0] :, :2] = E[e_sel[:, 0]]
+    pairs[f_sel.shape[0] :, 2:] = E[e_sel[:, 1]]
+    is_pt = np.zeros(pairs.shape[0], dtype=bool)
+    is_pt[: f_sel.shape[0]] = True
+    return pairs, is_pt
+
+
 def near_pairs(
     V: np.ndarray, edges: np.ndarray, faces: np.ndarray, fv: np.ndarray, ee: np.ndarray, max_distance: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """The candidate pairs closer than ``max_distance`` at V, as ((k, 4) vertex ids, (k,) is_point_triangle).
 
     ``fv`` rows are (face, vertex), ``ee`` rows (edge, edge), as the compiled broad phase returns them."""
-    fv = np.asarray(fv, dtype=np.int64).reshape(-1, 2)
-    ee = np.asarray(ee, dtype=np.int64).reshape(-1, 2)
-    F = np.asarray(faces, dtype=np.int64)
-    E = np.asarray(edges, dtype=np.int64)
-    pt = np.column_stack([fv[:, 1], F[fv[:, 0]]]) if fv.size else np.zeros((0, 4), np.int64)
-    eeids = np.column_stack([E[ee[:, 0]], E[ee[:, 1]]]) if ee.size else np.zeros((0, 4), np.int64)
-    pairs = np.ascontiguousarray(np.vstack([pt, eeids]), dtype=np.int64)
-    is_pt = np.concatenate([np.ones(pt.shape[0], bool), np.zeros(eeids.shape[0], bool)])
+    fv = np.asarray(fv).reshape(-1, 2)
+    ee = np.asarray(ee).reshape(-1, 2)
+    pairs, is_pt = candidate_pairs(edges, faces, fv, ee, np.arange(fv.shape[0] + ee.shape[0]))
     if pairs.shape[0] == 0:
         return pairs, is_pt
     d = pair_distances(V, pairs, is_pt)

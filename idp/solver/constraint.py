@@ -36,6 +36,12 @@ class StepConstraint(Protocol):
         :meth:`idp.solver.newton.StepSolver.solve`): record whether the targets are met there."""
         ...
 
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether it moves vertices that are not DOFs (kinematic tools) during the step: the contact model then
+        keeps every pair of held vertices, since a tool can reach them."""
+        ...
+
     def held_dofs(self) -> np.ndarray:
         """(n·d,) bool: DOFs held at their current value during the rest of the step."""
         ...

@@ -228,10 +228,13 @@ class StepSolver:
     def feasible_step(self, x: np.ndarray, P: np.ndarray, res: NewtonResult | None = None, ev=None) -> float:
         """Largest α ≤ 1 for which x + α·P is inversion-free (every term's ``max_step``: the det-root filter of
         barrier elastic energies) and collision-free (CCD on the shortened move)."""
-        alpha, _, _, _ = self._feasible(x, P, res if res is not None else NewtonResult(), ev)
+        alpha, _, _, _ = self._feasible(x, P, res if res is not None else NewtonResult(), ev, ccd_only=True)
         return alpha
 
-    def _feasible(self, x, P, res: NewtonResult, ev):
+    def _feasible(self, x, P, res: NewtonResult, ev, ccd_only: bool = False):
+        """(α, inversion α, CCD α, sweep candidates for the line search). ``ccd_only``: the move is only checked,
+        no energy is evaluated along it, so CCD may skip every pair whose vertices do not move (a constraint's
+        move of its bound vertices leaves all others still) and needs no collision set at x."""
         s = self.system
         t = time.perf_counter()
         alpha_inv = 1.0
@@ -244,11 +247,12 @@ class StepSolver:
         if s.contact is not None and alpha > 0:
             x_end = x + alpha * P
             t = time.perf_counter()
-            cand = s.contact.sweep_candidates(x, x_end)
+            cand = s.contact.sweep_candidates(x, x_end, moving_only=ccd_only)
             t1 = time.perf_counter()
-            if ev is None:
+            if ev is None and not ccd_only:
                 ev = self._contact_eval(x, res)
-            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, s.contact.min_distance(ev), ev)
+            gap = None if ev is None else s.contact.min_distance(ev)  # None: from the moving candidates
+            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, gap, ev)
             t2 = time.perf_counter()
             cand = s.contact.line_search_candidates(cand, alpha_ccd)
             res.timings["contact_build"] += t1 - t + time.perf_counter() - t2
@@ -414,15 +418,27 @@ class StepSolver:
         With a step constraint (``system.step_constraint``, §4.3) the first iterate is its feasible move of the
         bound vertices, its penalty joins S while it is on, its held DOFs do not move, and the loop stops only
         once it is settled (see :mod:`idp.solver.constraint`)."""
-        s, cfg = self.system, self.settings
+        s = self.system
         t_start = time.perf_counter()
         res = NewtonResult()
         x = (x_prev if start is None else start).copy()
+        self._constraint = s.step_constraint
+        self._held = None
+        if s.contact is not None:
+            s.contact.hold_still(None)  # last step's held vertices move towards their new targets
+        try:
+            return self._solve(x, x_prev, res, t_start, target_at_rest)
+        finally:
+            if s.contact is not None:
+                s.contact.hold_still(None)
+
+    def _solve(
+        self, x: np.ndarray, x_prev: np.ndarray, res: NewtonResult, t_start: float, target_at_rest: bool
+    ) -> tuple[np.ndarray, NewtonResult]:
+        s, cfg, c = self.system, self.settings, self._constraint
         n, d = x.shape
         free = s.dof_map.free_dofs
         sqrt_h = math.sqrt(s.h)
-        c = self._constraint = s.step_constraint
-        self._held = None
         if target_at_rest and self._target_is_minimiser(x, x_prev, res):
             if c is not None:
                 c.accept(x_prev)
@@ -459,7 +475,7 @@ class StepSolver:
             if not np.all(np.isfinite(g)):
                 raise SolverError(f"non-finite gradient at Newton iteration {it}")
 
-            tools = c.tool_moves(x) if c is not None and hasattr(c, "tool_moves") else []
+            tools: list = c.tool_moves(x) if c is not None and hasattr(c, "tool_moves") else []
             if tools:
                 p_free, q = self._direction_with_tools(H, g, g_full, ev, tools, res)
                 tool_move = max(abs(float(qk)) * float(np.abs(P).max()) for qk, (_, P) in zip(q, tools, strict=True))
@@ -509,11 +525,12 @@ class StepSolver:
                 x_new, changed = c.after_iterate(
                     x, converged, feasible, contact_limited=alpha_ccd < 1.0, in_contact=in_contact
                 )
-                if x_new is not x:  # bound vertices snapped onto their targets (a feasible move)
-                    x = x_new
+                moved = x_new is not x  # bound vertices snapped onto their targets (a feasible move)
+                x = x_new
+                still_changed = changed and self._update_held(c, free)
+                if moved or still_changed:  # (pairs among newly held vertices leave the barrier)
                     ev = self._contact_eval(x, res)
                 if changed:
-                    self._update_held(c, free)
                     energy, el, bar = self._energy(x, x_prev, ev)
             if converged and not changed and (c is None or c.settled):
                 res.converged = True
@@ -539,11 +556,28 @@ class StepSolver:
         if np.any(P.ravel()[~s.dof_map.free_mask] != 0.0):
             return False
         if s.contact is not None:
-            ev = self._contact_eval(target, res)
-            if ev.num_active > 0:
+            t = time.perf_counter()
+            within = s.contact.any_within_dhat(target)
+            res.timings["contact_build"] += time.perf_counter() - t
+            if within:
                 return False
         return not np.any(P) or self.feasible_step(x, P, res) >= 1.0
 
-    def _update_held(self, c, free: np.ndarray) -> None:
-        held = c.held_dofs()[free]
+    def _update_held(self, c, free: np.ndarray) -> bool:
+        """Takes the constraint's held DOFs; tells the contact model which vertices stay still (every DOF held),
+        so pairs among them leave its collision sets and CCD. Returns whether that vertex set changed."""
+        held_all = c.held_dofs()
+        held = held_all[free]
         self._held = held if held.any() else None
+        contact = self.system.contact
+        if contact is None:
+            return False
+        still = held_all.reshape(-1, self.system.dim).all(axis=1)
+        if getattr(c, "moves_obstacles", True):  # a tool moving in the step can reach pairs of held vertices
+            still[:] = False
+        before = contact.still
+        contact.hold_still(still if still.any() else None)
+        after = contact.still
+        if before is None or after is None:
+            return before is not after
+        return not np.array_equal(before, after)

@@ -180,6 +180,11 @@ class DirichletTargets:
         v = self.vertices[self._dof]
         self._held[(v[:, None] * self.dim + np.arange(self.dim)[None, :]).ravel()] = True
 
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether some bound vertices are not DOFs (kinematic tools, moved by this constraint during the step)."""
+        return bool(np.any(~self._dof))
+
     def held_dofs(self) -> np.ndarray:
         return self._held
 

@@ -107,6 +107,34 @@ def test_prescribed_vertices_follow_the_input_exactly(tmp_path):
     assert np.linalg.norm(out.frame(k)[n:] - V[k][n:], axis=1).max() > 0.8 * float(-gaps[k])
 
 
+def test_pairs_among_held_vertices_leave_the_step_without_changing_it(tmp_path, monkeypatch):
+    """The prescribed sphere's vertices are held in every step: its own pairs within d̂ leave the barrier and CCD
+    (ContactModel.hold_still), and the repaired frames are those of a run that keeps them. The spheres only touch
+    (depth 0: the free one gives way by about d̂ without buckling), so each step has one minimiser and both runs
+    take the same Newton path; where a shell buckles (a deep crossing) the barrier's constant offset can change
+    which of several minimisers the line search reaches, both certified."""
+    from idp.contact.model import ContactModel
+
+    V, F, _gaps = two_spheres(num_frames=5, subdivisions=3, depth=0.0)
+    n = V.shape[1] // 2
+    inp = _save_npz(tmp_path / "spheres.npz", V, F)
+    kw = {"dhat": 0.05, "prescribed": [{"indices": list(range(n))}], "newton_tol": 1e-6}
+    masked = run_repair(repair_scene(inp, **kw), tmp_path / "masked", progress=False)
+    hold_still = ContactModel.hold_still
+    monkeypatch.setattr(ContactModel, "hold_still", lambda self, vertices: hold_still(self, None))
+    whole = run_repair(repair_scene(inp, **kw), tmp_path / "whole", progress=False)
+    a, b = open_sequence(tmp_path / "masked" / "spheres.npz"), open_sequence(tmp_path / "whole" / "spheres.npz")
+    moved = 0.0
+    for k in range(V.shape[0]):
+        assert np.array_equal(a.frame(k)[:n], b.frame(k)[:n])  # on the input in both
+        np.testing.assert_allclose(a.frame(k), b.frame(k), rtol=0, atol=1e-9)
+        moved = max(moved, float(np.abs(a.frame(k) - V[k]).max()))
+    assert moved > 0.02  # the free sphere did give way
+    steps = [(r, w) for r, w in zip(masked.step_records, whole.step_records, strict=True) if r.get("newton_iterations")]
+    assert steps and all(r["contacts"] < w["contacts"] for r, w in steps)  # the held sphere's own pairs left out
+    assert masked.summary["all_certified"] and whole.summary["all_certified"]
+
+
 @pytest.mark.parametrize("fmt", ["obj", "pvd", "usd"])
 def test_each_input_form_repairs_back_into_its_own_form(tmp_path, fmt):
     if fmt == "usd":

@@ -287,3 +287,23 @@ def test_bad_input():
     bad[0, 0] = np.nan
     with pytest.raises(ValueError):
         surface_candidates(bad, None, E, F, 1e-3, nd)
+
+
+@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+@pytest.mark.parametrize("name", list(SCENES))
+def test_still_vertices_leave_only_their_own_pairs_out(name, sweep):
+    """``still`` marks vertices that do not move in the query: exactly the pairs made only of still or static
+    vertices are left out, every other pair of the plain query is kept."""
+    V, E, F, nd = SCENES[name]()
+    rng = np.random.default_rng(11)
+    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    still = rng.random(len(V)) < 0.5
+    moving = (np.arange(len(V)) < nd) & ~still
+    fv_all, ee_all = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd))
+    fv, ee = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still))
+    want_fv = {(f, v) for f, v in fv_all if moving[v] or moving[F[f]].any()}
+    want_ee = {(a, b) for a, b in ee_all if moving[E[a]].any() or moving[E[b]].any()}
+    assert fv == want_fv and ee == want_ee
+    assert len(want_fv) < len(fv_all) and len(want_fv) > 0  # the mask matters in every scene
+    with pytest.raises(ValueError, match="still"):
+        surface_candidates(V, V1, E, F, 2e-2, nd, still[:-1])

@@ -38,7 +38,7 @@ def test_bounds_are_conservative(name):
     v0, v1 = cm.surface_positions(x), cm.surface_positions(y)
     fv, ee = cm.sweep_candidates(x, y)
     r = 0.9
-    dist, speed, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r)
+    dist, speed, first, _ = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r)
     pairs, is_pt = _pairs(cm, fv, ee)
     assert pairs.shape[0] > 100
     np.testing.assert_allclose(dist, pair_distances(v0, pairs, is_pt), rtol=1e-12, atol=1e-15)
@@ -145,7 +145,7 @@ def test_non_finite_move_is_not_filtered_away():
     v1 = v0.copy()
     v1[0, 0] = np.nan
     fv, ee = cm.sweep_candidates(x, x)
-    _, _, first = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, 0.8)
+    _, _, first, _ = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, 0.8)
     pairs, _ = _pairs(cm, fv, ee)
     touched = (pairs == 0).any(axis=1)
     assert touched.any() and (first[touched] == 0.0).all()
