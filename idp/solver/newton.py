@@ -489,6 +489,8 @@ class StepSolver:
                 res.decrement = self._measure(p_free) / sqrt_h
                 converged = res.decrement <= cfg.tol
             del H  # the matrix is not needed past the direction: not alive during the line search or the next assembly
+            if self._held is not None:  # exactly still (their pairs among themselves are left out of CCD)
+                p_free[self._held] = 0.0
 
             p = np.zeros(n * d)
             p[free] = p_free

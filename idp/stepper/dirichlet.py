@@ -20,8 +20,9 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held
    where they are and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
-   targets (by a feasible move: it is checked like any other), held there, and the penalty is dropped; Newton
-   then continues to convergence.
+   targets (by a feasible move: it is checked like any other), or, when that last move would collide, held where
+   they are (met within the tolerance, the residual reported); the penalty is dropped and Newton continues to
+   convergence.
 
 Bound vertices that are not optimised DOFs (a kinematic obstacle: a rigid tool) move first by the feasible
 fraction at ``begin``; then each tool is one reduced Newton DOF s: its vertices at x + s·P (P = the remaining
@@ -249,6 +250,11 @@ class DirichletTargets:
                 x[self.vertices] = self.targets
                 self._hold()
                 return x, True
+            # the last bit of the move would collide (a prescribed animation whose own parts pass through each
+            # other there): met within the tolerance, held where they are (further doublings of κ_B would only
+            # press the colliding pair together; the residual is reported)
+            self._hold()
+            return x, True
         if self._penalty_on and not near_converged:
             # stagnation: the penalty has not brought the worst handle min_progress closer for stall_iterations
             # Newton iterates whose steps CCD cut while some pair is within d̂; freeze the handles where they are.
