@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +23,11 @@ from idp.paper_data import resolve_data_path
 
 
 def _load(path: str) -> np.ndarray:
+    """vertices (F, n, 3) of an .npz sequence, or of the finished frames of an unfinished repair (its
+    ``NAME.npz.partial`` folder of ``frame_*.npy``)."""
+    if Path(path).is_dir():
+        frames = sorted(Path(path).glob("frame_*.npy"))
+        return np.stack([np.load(f) for f in frames]).astype(float)
     with np.load(resolve_data_path(path)) as d:
         return np.asarray(d["vertices"], dtype=float)
 
@@ -43,7 +49,7 @@ def _deviation(out: np.ndarray, inp: np.ndarray) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("ours", help="idp's repaired sequence (.npz with vertices (F, n, 3))")
+    ap.add_argument("ours", help="idp's output: .npz with vertices (F, n, 3), or a run's .npz.partial folder")
     ap.add_argument("--input", required=True, help="the input sequence (data:repair/…_unfixed.npz)")
     ap.add_argument("--authors", required=True, help="the authors' repaired sequence (data:repair/…_fixed.npz)")
     ap.add_argument("--frames", default=None, help="A:B, frames to compare (default: those idp wrote)")
@@ -54,16 +60,16 @@ def main(argv: list[str] | None = None) -> int:
     faces = _faces(args.input)
     first, stop = (0, ours.shape[0]) if args.frames is None else map(int, args.frames.split(":"))
     first_frame_keys = intersecting_pair_keys(inp[0], faces)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for k in range(max(first, 1), min(stop, ours.shape[0], theirs.shape[0], inp.shape[0])):
-        row: dict[str, object] = {"frame": k}
+        row: dict[str, Any] = {"frame": k}
         for name, seq in (("idp", ours), ("authors", theirs)):
             keys = intersecting_pair_keys(seq[k], faces)
             row[name] = {"new_crossings": len(keys - first_frame_keys), **_deviation(seq[k], inp[k])}
         rows.append(row)
 
     def summary(name: str) -> dict[str, float | int]:
-        per = [r[name] for r in rows]  # type: ignore[index]
+        per = [r[name] for r in rows]
         return {
             "frames": len(per),
             "max_deviation": max(p["max"] for p in per),
@@ -73,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
             "frames_with_new_crossings": sum(p["new_crossings"] > 0 for p in per),
         }
 
-    result = {"ours": args.ours, "input": args.input, "authors": args.authors, "frames": rows}
+    result: dict[str, Any] = {"ours": args.ours, "input": args.input, "authors": args.authors, "frames": rows}
     result["summary"] = {"idp": summary("idp"), "authors": summary("authors")}
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=1))

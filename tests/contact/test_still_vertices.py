@@ -77,7 +77,7 @@ def test_ccd_of_a_partial_move_skips_still_pairs_and_keeps_the_step(name):
 
 
 def test_a_moving_obstacle_keeps_every_pair():
-    x, cm, still, nd = _scene("tilted_on_static")
+    x, cm, _still, nd = _scene("tilted_on_static")
     y = x.copy()
     y[nd:, 2] += 0.01  # only the static floor moves (a kinematic tool): its pairs with still vertices matter
     plain = cm.sweep_candidates(x, y)
