@@ -55,6 +55,8 @@ def output_dir_problem(path: str | os.PathLike) -> str | None:
     """Why ``path`` cannot be (or become) an output folder, found without creating anything; None when it can.
 
     ``path`` must be a folder or not exist yet; its nearest existing ancestor must be a writable folder."""
+    if "\x00" in os.fspath(path):  # Path.exists() just says False for it; mkdir would raise ValueError
+        return "the name contains a NUL character"
     p = Path(path)
     for q in (p, *p.parents):
         try:
@@ -83,6 +85,6 @@ def make_output_dir(path: str | os.PathLike) -> Path:
     p = check_output_dir(path)
     try:
         p.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create output folder {p}: {exc.strerror or exc}") from None
+    except (OSError, ValueError) as exc:
+        raise OutputError(f"cannot create output folder {p}: {getattr(exc, 'strerror', None) or exc}") from None
     return p
