@@ -157,10 +157,7 @@ class ContactModel:
         tol2 = float(tolerance) ** 2
         pairs: list[tuple[list[int], list[int]]] = []  # (one side's vertices, the other side's), collision ids
         if fv is not None and ee is not None:
-            n = fv.shape[0] + ee.shape[0]
-            ctype, sqd, eps = np.empty(n, np.int64), np.empty(n), np.empty(n)
-            self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
-            touch = np.flatnonzero(sqd <= tol2)
+            touch = np.flatnonzero(self._candidate_sqdist(vs, fv, ee) <= tol2)
             nf = fv.shape[0]
             fv_touch, ee_touch = touch[touch < nf], touch[touch >= nf] - nf
             self._excluded_fv = np.unique(fv[fv_touch, 0].astype(np.int64) * vs.shape[0] + fv[fv_touch, 1])
@@ -264,12 +261,15 @@ class ContactModel:
             return self.evaluate(x).num_active > 0
         vs = self.surface_positions(x)
         fv, ee = self._candidates(vs, None)
+        return bool(np.any(self._candidate_sqdist(vs, fv, ee) < self.dhat**2))
+
+    def _candidate_sqdist(self, vs: np.ndarray, fv: np.ndarray, ee: np.ndarray) -> np.ndarray:
+        """Squared distance of every (fv, then ee) candidate at surface positions ``vs`` (compiled barrier)."""
         n = fv.shape[0] + ee.shape[0]
-        if n == 0:
-            return False
         ctype, sqd, eps = np.empty(n, np.int64), np.empty(n), np.empty(n)
-        self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
-        return bool(np.any(sqd < self.dhat**2))
+        if n:
+            self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
+        return sqd
 
     def _candidates(
         self, v0: np.ndarray, v1: np.ndarray | None, *, every_pair: bool = False, still: np.ndarray | None = None
@@ -300,8 +300,10 @@ class ContactModel:
         counted as moving)."""
         if self.compiled:
             v0, v1 = self.surface_positions(x0), self.surface_positions(x1)
+            if not moving_only:
+                return self._candidates(v0, v1)
             still = np.all(v0 == v1, axis=1)
-            if not moving_only or not still[self.num_dynamic_collision_vertices :].all():
+            if not still[self.num_dynamic_collision_vertices :].all():
                 return self._candidates(v0, v1)
             if self._still is not None:
                 still |= self._still
@@ -459,17 +461,14 @@ class ContactModel:
         if candidates is None:
             candidates = self._candidates(v0, v1)
         fv, ee = candidates
-        rescaling = float(self._ccd.conservative_rescaling)
-        if current_min_distance is None:  # which narrow phase is known only after d(0): bound for both in one pass
-            fallback = float(self._fallback_ccd.conservative_rescaling)
-            dist, speed, first, first_fallback = ccd_filter.move_bounds(
-                v0, v1, self._faces, self._edges, fv, ee, rescaling, fallback
-            )
+        # with no gap given, which narrow phase to use is known only after d(0): bound for both in one pass
+        fallback = float(self._fallback_ccd.conservative_rescaling) if current_min_distance is None else None
+        dist, speed, first, first_fallback = ccd_filter.move_bounds(
+            v0, v1, self._faces, self._edges, fv, ee, float(self._ccd.conservative_rescaling), fallback
+        )
+        if current_min_distance is None:
             moving = speed > 0.0
             current_min_distance = float(dist[moving].min()) if moving.any() else np.inf
-        else:
-            bounds4 = ccd_filter.move_bounds(v0, v1, self._faces, self._edges, fv, ee, rescaling)
-            dist, speed, first, first_fallback = bounds4
         ccd, near_contact = self._choose_ccd(current_min_distance)
         if ccd is not self._ccd:  # the fallback's own rescaling decides which pairs its narrow phase must see
             if first_fallback is None:
