@@ -434,7 +434,7 @@ class ContactModel:
         minutes and gigabytes for one query at a 1e-15 gap), so below 1e-4·d̂ the additive CCD is used for that
         query, and the nearly touching pairs are advanced conservatively with exact distances
         (:mod:`idp.contact.near_contact_ccd`; additive CCD alone is not provably conservative there), or, without
-        the compiled barrier, capped by a Lipschitz bound (:meth:`_near_pair_step_bound`).
+        the compiled barrier, by :meth:`_near_pair_step_bound` (2D: the same advancement; 3D: a Lipschitz bound).
         ``current_min_distance``: the smallest gap at x0 that decides this (the Newton loop's active pairs); None:
         the smallest gap among the candidates that move relative to each other (measured here, without building a
         collision set: the feasible moves of step constraints). ``ev``: the collision set at x0 (evaluated here
@@ -544,12 +544,20 @@ class ContactModel:
         return fv[keep[:nf]], ee[keep[nf:]]
 
     def _near_pair_step_bound(self, v0: np.ndarray, v1: np.ndarray, ev: ContactEvaluation) -> float:
-        """α keeping every pair closer than 1e-4·d̂ at more than half its gap along v0 → v1.
+        """α keeping every pair closer than 1e-4·d̂ at a safe part of its gap along v0 → v1 (the barrier without
+        the compiled 3D path: ipctk's collisions, and every 2D scene).
 
         Additive CCD is not provably conservative: at gaps of ~1e-10 (squared distances below the rounding of
-        the coordinates) it returned α = 1 for a move that crossed (Fig. 3 armadillo, step 104).  For two
-        primitives with vertices a_i and b_j, every point difference p − q is a convex combination of the
-        a_i − b_j, so the gap falls by at most α·max_ij |Δa_i − Δb_j| ≤ α·M, M the largest displacement
+        the coordinates) it returned α = 1 for a move that crossed (Fig. 3 armadillo, step 104).
+
+        2D: each such point–segment pair is advanced conservatively with exact distances
+        (:func:`idp.contact.near_contact_ccd.conservative_step_2d`, keeping ``NEAR_KEEP`` of its gap), so a pair
+        that slides along itself costs advances, not step length. (The Lipschitz bound below, used before, froze
+        a Fig. 19 disk handle whose vertex slid past its notch at a 1e-8 gap: α ≈ 4e-7 for 30 iterations until the
+        handle was reported stalled, where the full step was collision-free.)
+
+        3D: for two primitives with vertices a_i and b_j, every point difference p − q is a convex combination of
+        the a_i − b_j, so the gap falls by at most α·max_ij |Δa_i − Δb_j| ≤ α·M, M the largest displacement
         difference between any two of the pair's vertices; α ≤ ½·d/M keeps it above d/2 (relative, not absolute,
         displacements: a common translation costs nothing)."""
         if ev.num_active == 0:
@@ -575,6 +583,13 @@ class ContactModel:
             sqd = np.asarray(dists, dtype=float)
         if verts.shape[0] == 0:
             return 1.0
+        if v0.shape[1] == 2:
+            from idp.contact.near_contact_ccd import conservative_step_2d
+
+            pairs = verts[:, :3].copy()
+            vv = pairs[:, 2] < 0  # vertex–vertex: the "segment" is the second vertex twice
+            pairs[vv, 2] = pairs[vv, 1]
+            return conservative_step_2d(v0, v1, pairs, alpha_max=1.0, keep=NEAR_KEEP)
         dv = v1 - v0
         moves = np.zeros(verts.shape[0])
         for i in range(4):

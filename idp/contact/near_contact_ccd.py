@@ -1,4 +1,5 @@
-"""Conservative advancement for nearly touching surface pairs (3D), with exact primitive distances.
+"""Conservative advancement for nearly touching surface pairs, with exact primitive distances (3D: point–triangle
+and edge–edge; 2D: point–segment).
 
 Why: Tight Inclusion degenerates on pairs that already nearly touch (minutes and gigabytes for one
 query at a 1e-15 gap), and ipctk's additive CCD, used instead there, is not provably conservative:
@@ -103,6 +104,88 @@ def _advance_pair(V0, dV, ids, is_point_triangle, alpha_max, keep, max_advances)
 def _advance_all(V0, dV, pairs, is_point_triangle, alpha_max, keep, max_advances, out):  # pragma: no cover
     for i in prange(pairs.shape[0]):
         out[i] = _advance_pair(V0, dV, pairs[i], is_point_triangle[i], alpha_max, keep, max_advances)
+
+
+@njit(cache=True, error_model="numpy")
+def _point_segment_distance(px, py, ax, ay, bx, by):  # pragma: no cover - compiled
+    """Exact distance from point p to segment ab (2D); a zero-length segment is the point a. Interior feature:
+    the cross product over the length (no subtraction of a projected point, which loses digits at tiny gaps)."""
+    ex = bx - ax
+    ey = by - ay
+    L2 = ex * ex + ey * ey
+    qx = px - ax
+    qy = py - ay
+    t = (qx * ex + qy * ey) / L2 if L2 > 0.0 else 0.0
+    if t <= 0.0:
+        return np.sqrt(qx * qx + qy * qy)
+    if t >= 1.0:
+        return np.sqrt((px - bx) ** 2 + (py - by) ** 2)
+    return abs(ex * qy - ey * qx) / np.sqrt(L2)
+
+
+@njit(cache=True, error_model="numpy")
+def _advance_pair_2d(V0, dV, ids, alpha_max, keep, max_advances):  # pragma: no cover - compiled
+    """As :func:`_advance_pair` for a 2D point ids[0] against the segment (ids[1], ids[2])."""
+    X = np.empty((3, 2))
+    D = np.empty((3, 2))
+    scale = 0.0
+    for r in range(3):
+        for c in range(2):
+            X[r, c] = V0[ids[r], c]
+            D[r, c] = dV[ids[r], c]
+            scale = max(scale, abs(X[r, c]) + abs(D[r, c]))
+    mx = (D[0, 0] + D[1, 0] + D[2, 0]) / 3.0
+    my = (D[0, 1] + D[1, 1] + D[2, 1]) / 3.0
+    la = np.sqrt((D[0, 0] - mx) ** 2 + (D[0, 1] - my) ** 2)
+    lb = max(np.sqrt((D[1, 0] - mx) ** 2 + (D[1, 1] - my) ** 2), np.sqrt((D[2, 0] - mx) ** 2 + (D[2, 1] - my) ** 2))
+    lip = la + lb
+    if lip == 0.0:
+        return alpha_max
+    slack = 64.0 * 2.220446049250313e-16 * scale
+    g = _point_segment_distance(X[0, 0], X[0, 1], X[1, 0], X[1, 1], X[2, 0], X[2, 1])
+    target = keep * g
+    alpha = 0.0
+    for _ in range(max_advances):
+        step = (g - slack - target) / lip
+        if step <= 0.0:
+            return alpha
+        alpha += step
+        if alpha >= alpha_max:
+            return alpha_max
+        for r in range(3):
+            for c in range(2):
+                X[r, c] = V0[ids[r], c] + alpha * D[r, c]
+        g = _point_segment_distance(X[0, 0], X[0, 1], X[1, 0], X[1, 1], X[2, 0], X[2, 1])
+    return alpha
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _advance_all_2d(V0, dV, pairs, alpha_max, keep, max_advances, out):  # pragma: no cover - compiled
+    for i in prange(pairs.shape[0]):
+        out[i] = _advance_pair_2d(V0, dV, pairs[i], alpha_max, keep, max_advances)
+
+
+def conservative_step_2d(
+    V0: np.ndarray, V1: np.ndarray, pairs: np.ndarray, alpha_max: float = 1.0, keep: float = 0.5
+) -> float:
+    """2D: largest α ≤ ``alpha_max`` found by conservative advancement such that every pair's gap stays above
+    ``keep`` times its gap at V0 along V0 → V0 + α(V1 − V0). ``pairs``: (k, 3) vertex ids, a point and a segment
+    (a vertex–vertex pair repeats its second vertex)."""
+    if pairs.shape[0] == 0 or alpha_max <= 0.0:
+        return float(max(alpha_max, 0.0))
+    V0 = np.ascontiguousarray(V0, dtype=float)
+    dV = np.ascontiguousarray(V1, dtype=float) - V0
+    out = np.empty(pairs.shape[0])
+    _advance_all_2d(
+        V0,
+        dV,
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        float(alpha_max),
+        float(keep),
+        MAX_ADVANCES,
+        out,
+    )
+    return float(min(alpha_max, out.min()))
 
 
 def candidate_pairs(

@@ -4,7 +4,7 @@ pairs that slide along themselves."""
 import numpy as np
 import pytest
 
-from idp.contact.near_contact_ccd import conservative_step, near_pairs, pair_distances
+from idp.contact.near_contact_ccd import conservative_step, conservative_step_2d, near_pairs, pair_distances
 
 TRIANGLE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
@@ -82,3 +82,76 @@ def test_near_pairs_selects_candidates_by_exact_distance():
     fv = np.array([[0, 0], [0, 1]])  # (face, vertex)
     pairs, is_pt = near_pairs(V, edges, faces, fv, np.zeros((0, 2), np.int64), 1e-6)
     assert pairs.tolist() == [[0, 2, 3, 4]] and is_pt.tolist() == [True]
+
+
+# -- 2D: a point against a segment --------------------------------------------------------------------------------
+
+
+def _point_segment_gaps(V: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Reference distances (numpy) of 2D point–segment pairs (rows: point, segment start, segment end)."""
+    p, a, b = V[pairs[:, 0]], V[pairs[:, 1]], V[pairs[:, 2]]
+    e = b - a
+    L2 = np.einsum("ij,ij->i", e, e)
+    t = np.clip(np.einsum("ij,ij->i", p - a, e) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * e), axis=1)
+
+
+def test_2d_sliding_at_a_tiny_gap_does_not_freeze_the_step():
+    # a Fig. 19 handle vertex sliding past the edge of its notch: at a 1e-6 gap the whole move is taken; at 1e-8 the
+    # advance cap (MAX_ADVANCES) still allows a useful fraction, where a Lipschitz bound on the gap gave 3.6e-7
+    move = np.array([[0.0145, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    V0 = np.array([[0.3, 1e-6], [0.0, 0.0], [1.0, 0.0]])
+    assert conservative_step_2d(V0, V0 + move, np.array([[0, 1, 2]])) == 1.0
+    V0 = np.array([[0.3, 1e-8], [0.0, 0.0], [1.0, 0.0]])
+    assert conservative_step_2d(V0, V0 + move, np.array([[0, 1, 2]]), keep=0.1) > 0.1  # keep: ContactModel's
+
+
+@pytest.mark.parametrize("gap", [1e-6, 1e-9, 1e-12])
+def test_2d_approaching_point_keeps_its_share_of_the_gap(gap):
+    V0 = np.array([[0.4, gap], [0.0, 0.0], [1.0, 0.0]])
+    V1 = V0 + np.array([[0.0, -1e-3], [0.0, 0.0], [0.0, 0.0]])
+    pairs = np.array([[0, 1, 2]])
+    alpha = conservative_step_2d(V0, V1, pairs, keep=0.5)
+    assert 0.4 * gap / 1e-3 <= alpha <= 0.5 * gap / 1e-3 * (1 + 1e-6)
+    for t in np.linspace(0.0, alpha, 65):
+        assert _point_segment_gaps(V0 + t * (V1 - V0), pairs)[0] >= 0.5 * gap * (1 - 1e-6)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_2d_random_moves_never_lose_more_than_the_kept_gap(seed):
+    rng = np.random.default_rng(seed)
+    V0s, V1s, pairs = [], [], []
+    for k in range(40):
+        a, b = rng.standard_normal((2, 2)) * 0.05
+        e = b - a
+        n = np.array([-e[1], e[0]]) / np.linalg.norm(e)
+        s = rng.uniform(-0.2, 1.2)  # beside the segment or past an end
+        p = a + s * e + 10.0 ** rng.uniform(-11, -5) * n
+        base = np.vstack([p, a, b if k % 5 else a])  # every fifth: vertex–vertex (the segment is a point)
+        V0s.append(base)
+        V1s.append(base + rng.standard_normal((3, 2)) * 10.0 ** rng.uniform(-5, -2))
+        pairs.append(np.arange(3) + 3 * k)
+    V0, V1, P = np.vstack(V0s), np.vstack(V1s), np.array(pairs)
+    gaps = _point_segment_gaps(V0, P)
+    alpha = conservative_step_2d(V0, V1, P, keep=0.1)
+    assert 0 < alpha <= 1
+    for t in np.linspace(0.0, alpha, 65):
+        assert np.all(_point_segment_gaps(V0 + t * (V1 - V0), P) >= 0.1 * gaps * (1 - 1e-6))
+
+
+def test_2d_contact_model_lets_a_nearly_touching_vertex_slide():
+    """A 2D vertex 1e-8 above an edge (below 1e-4·d̂: the additive CCD and the near-pair bound decide) moving along
+    it: a useful part of the collision-free step is taken (the advance cap), not the ≈ 4e-7 a Lipschitz bound on the gap
+    allowed."""
+    from idp.contact.model import ContactModel
+
+    V = np.array([[0.0, 0.0], [1.0, 0.0], [0.3, 1e-8], [0.3, 0.5]])
+    edges = np.array([[0, 1], [2, 3]])
+    model = ContactModel(V, edges, num_dynamic_vertices=4, dhat=1e-3)
+    x1 = V.copy()
+    x1[2:, 0] += 0.0145
+    assert model.max_collision_free_step(V, x1) > 0.1
+    x1 = V.copy()
+    x1[2, 1] -= 1e-3  # straight down through the edge: stops with most of the gap kept
+    alpha = model.max_collision_free_step(V, x1)
+    assert 0.0 < alpha <= 0.9 * 1e-8 / 1e-3
