@@ -375,6 +375,9 @@ def test_the_gradient_descent_scaling_is_finite_and_positive():
     assert np.all(np.isfinite(d)) and np.all(d > 0)
     assert d[0] == 4.0 and d[2] == 2.0 and d[1] == d[3] == d[4] == d[5] == 3.0  # the median of 4 and 2
     assert np.array_equal(_positive_scaling(np.zeros(3)), np.ones(3))
+    # a p-norm energy's diagonal spans many orders of magnitude: every positive entry near the typical one is kept
+    wide = np.array([1e25, 1e13, 2.0, 3.0, 5.0, 1e-3])
+    assert np.array_equal(_positive_scaling(wide), wide)
 
 
 def test_pattern_cache_keeps_frozen_layout_arrays_and_copies_writeable_ones():
