@@ -121,6 +121,44 @@ def test_growing_small_gains_keep_doubling():
     assert bc.doublings == 12
 
 
+def test_multiplier_meets_targets_that_the_capped_penalty_cannot():
+    """κ_B at its cap against an elastic stiffness K ≫ κ_B, nothing in contact: augmented-Lagrangian updates
+    λ ← λ − κ m (x − x̃) carry the handle onto its target (the penalised minimum alone stays at κ/(K + κ))."""
+    K, target = 4.0, 1.0  # each update shrinks the residual by K / (K + κ) = 0.8: 21 updates reach 1e-2
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-2, kappa_initial=1.0, max_doublings=0)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[target]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    for _ in range(bc.max_multiplier_updates + 1):
+        # the minimum of K/2 x² + κ/2 (x − 1)² − λ (x − 1): the gradient in x is zero there
+        x[0] = (bc.kappa * target + _multiplier(bc)) / (K + bc.kappa)
+        g = K * x[0, 0] + bc.penalty_gradient(x)[0]
+        assert abs(g) < 1e-12
+        x, changed = bc.after_iterate(x, True, lambda x, P: 1.0, in_contact=False)
+        if bc.met:
+            break
+        assert changed
+    assert bc.met and x[0, 0] == target and 10 <= bc.multiplier_updates < bc.max_multiplier_updates
+    assert bc.report(x, 1e-3)["multiplier_updates"] == bc.multiplier_updates
+
+
+def test_no_multiplier_update_in_contact():
+    """Against contact the capped penalty is a block, as before: the multiplier would only press the gap shut."""
+    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, max_doublings=0)
+    x = np.zeros((2, 1))
+    bc.set_targets(np.array([0]), np.array([[1.0]]))
+    x = bc.begin(x, lambda x, P: 0.0)
+    x[0] = 0.2
+    assert bc.after_iterate(x, True, lambda x, P: 0.0, in_contact=True) == (x, False)
+    assert bc.settled and not bc.met and bc.multiplier_updates == 0
+
+
+def _multiplier(bc: DirichletTargets) -> float:
+    """λ of the single penalised vertex (the linear term of the penalty: its gradient at x = x̃ is −λ)."""
+    at_target = np.array([[1.0], [0.0]])
+    return -float(bc.penalty_gradient(at_target)[0])
+
+
 def test_stalled_targets_are_frozen_where_they_are():
     """Away from convergence, stall_iterations iterates without min_progress gain hold the handle in place."""
     bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
