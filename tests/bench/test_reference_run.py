@@ -215,8 +215,9 @@ def test_the_real_reference_runs_beside_idp_on_bunny_700(tmp_path, monkeypatch):
     assert main(["bench", "--only", "bunny_700", "--with-reference", "--runs", "1", "-o", str(tmp_path)]) == 0
     c = json.loads((tmp_path / "bunny_700.reference.json").read_text())
     # its README's figures for this case (236 iterations, volume 7.81414958 of the box's 8) on an idle machine; under
-    # load its OpenMP reductions may run in another order (measured: 237 iterations while other tests ran)
-    assert abs(c["reference_newton_iterations"] - 236) <= 5 and c["reference_steps"] == 60
+    # load its OpenMP reductions may run in another order (measured: 237, and 225 on an Intel Xeon with other jobs
+    # beside it), so the iterations are checked within 10 %, the fill tightly
+    assert abs(c["reference_newton_iterations"] - 236) <= 24 and c["reference_steps"] == 60
     assert c["reference_fill"] == pytest.approx(7.81414958 / 8.0, rel=2e-3)
     assert c["reference_wall_median"] > 0 and c["speedup"] > 0
     assert set(c["reference_split"]) >= {"assembly", "linear_solve", "ccd", "contact_build"}
