@@ -41,21 +41,48 @@ from idp.contact._distance_kernels import (
 MAX_ADVANCES = 250_000
 
 
+POINT_TRIANGLE, EDGE_EDGE, POINT_SEGMENT = 0, 1, 2  # pair kinds; a 2D point–segment pair is padded to z = 0
+
+
+def _kinds(is_point_triangle: np.ndarray) -> np.ndarray:
+    return np.where(np.asarray(is_point_triangle, dtype=bool), POINT_TRIANGLE, EDGE_EDGE).astype(np.int64)
+
+
 @njit(cache=True, error_model="numpy")
-def _pair_distance(X, S, is_point_triangle):  # pragma: no cover - compiled
-    """Exact (closest-feature) distance of the pair X: point X[0] vs triangle X[1:4], or edge X[0:2]
-    vs edge X[2:4]."""
-    if is_point_triangle:
+def _point_segment_distance(X):  # pragma: no cover - compiled
+    """Exact distance from point X[0] to segment X[1]X[2]; a zero-length segment is the point X[1]. Interior
+    feature: |e × q| / |e| (no subtraction of a projected point, which loses digits at tiny gaps)."""
+    e = X[2] - X[1]
+    q = X[0] - X[1]
+    L2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+    t = (q[0] * e[0] + q[1] * e[1] + q[2] * e[2]) / L2 if L2 > 0.0 else 0.0
+    if t <= 0.0:
+        return np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+    if t >= 1.0:
+        return np.sqrt((X[0, 0] - X[2, 0]) ** 2 + (X[0, 1] - X[2, 1]) ** 2 + (X[0, 2] - X[2, 2]) ** 2)
+    cx = e[1] * q[2] - e[2] * q[1]
+    cy = e[2] * q[0] - e[0] * q[2]
+    cz = e[0] * q[1] - e[1] * q[0]
+    return np.sqrt(cx * cx + cy * cy + cz * cz) / np.sqrt(L2)
+
+
+@njit(cache=True, error_model="numpy")
+def _pair_distance(X, S, kind):  # pragma: no cover - compiled
+    """Exact (closest-feature) distance of the pair X: point X[0] vs triangle X[1:4], edge X[0:2] vs edge X[2:4],
+    or point X[0] vs segment X[1:3]."""
+    if kind == POINT_TRIANGLE:
         t = point_triangle_type(X)
         gather_stencil(PT_LOCAL, t, X, S)
         return np.sqrt(max(sq_distance(PT_KIND[t], S), 0.0))
-    t = edge_edge_type(X)
-    gather_stencil(EE_LOCAL, t, X, S)
-    return np.sqrt(max(sq_distance(EE_KIND[t], S), 0.0))
+    if kind == EDGE_EDGE:
+        t = edge_edge_type(X)
+        gather_stencil(EE_LOCAL, t, X, S)
+        return np.sqrt(max(sq_distance(EE_KIND[t], S), 0.0))
+    return _point_segment_distance(X)
 
 
 @njit(cache=True, error_model="numpy")
-def _advance_pair(V0, dV, ids, is_point_triangle, alpha_max, keep, max_advances):  # pragma: no cover
+def _advance_pair(V0, dV, ids, kind, alpha_max, keep, max_advances):  # pragma: no cover
     X = np.empty((4, 3))
     S = np.empty((4, 3))
     D = np.empty((4, 3))
@@ -65,7 +92,7 @@ def _advance_pair(V0, dV, ids, is_point_triangle, alpha_max, keep, max_advances)
             X[r, c] = V0[ids[r], c]
             D[r, c] = dV[ids[r], c]
             scale = max(scale, abs(X[r, c]) + abs(D[r, c]))
-    split = 1 if is_point_triangle else 2  # vertices [0, split) form the first primitive
+    split = 2 if kind == EDGE_EDGE else 1  # vertices [0, split) form the first primitive
     mean = np.zeros(3)
     for r in range(4):
         for c in range(3):
@@ -82,7 +109,7 @@ def _advance_pair(V0, dV, ids, is_point_triangle, alpha_max, keep, max_advances)
     if lip == 0.0:
         return alpha_max
     slack = 64.0 * 2.220446049250313e-16 * scale  # rounding allowance on a computed gap
-    g0 = _pair_distance(X, S, is_point_triangle)
+    g0 = _pair_distance(X, S, kind)
     target = keep * g0
     alpha = 0.0
     g = g0
@@ -96,73 +123,14 @@ def _advance_pair(V0, dV, ids, is_point_triangle, alpha_max, keep, max_advances)
         for r in range(4):
             for c in range(3):
                 X[r, c] = V0[ids[r], c] + alpha * D[r, c]
-        g = _pair_distance(X, S, is_point_triangle)
+        g = _pair_distance(X, S, kind)
     return alpha
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _advance_all(V0, dV, pairs, is_point_triangle, alpha_max, keep, max_advances, out):  # pragma: no cover
+def _advance_all(V0, dV, pairs, kinds, alpha_max, keep, max_advances, out):  # pragma: no cover
     for i in prange(pairs.shape[0]):
-        out[i] = _advance_pair(V0, dV, pairs[i], is_point_triangle[i], alpha_max, keep, max_advances)
-
-
-@njit(cache=True, error_model="numpy")
-def _point_segment_distance(px, py, ax, ay, bx, by):  # pragma: no cover - compiled
-    """Exact distance from point p to segment ab (2D); a zero-length segment is the point a. Interior feature:
-    the cross product over the length (no subtraction of a projected point, which loses digits at tiny gaps)."""
-    ex = bx - ax
-    ey = by - ay
-    L2 = ex * ex + ey * ey
-    qx = px - ax
-    qy = py - ay
-    t = (qx * ex + qy * ey) / L2 if L2 > 0.0 else 0.0
-    if t <= 0.0:
-        return np.sqrt(qx * qx + qy * qy)
-    if t >= 1.0:
-        return np.sqrt((px - bx) ** 2 + (py - by) ** 2)
-    return abs(ex * qy - ey * qx) / np.sqrt(L2)
-
-
-@njit(cache=True, error_model="numpy")
-def _advance_pair_2d(V0, dV, ids, alpha_max, keep, max_advances):  # pragma: no cover - compiled
-    """As :func:`_advance_pair` for a 2D point ids[0] against the segment (ids[1], ids[2])."""
-    X = np.empty((3, 2))
-    D = np.empty((3, 2))
-    scale = 0.0
-    for r in range(3):
-        for c in range(2):
-            X[r, c] = V0[ids[r], c]
-            D[r, c] = dV[ids[r], c]
-            scale = max(scale, abs(X[r, c]) + abs(D[r, c]))
-    mx = (D[0, 0] + D[1, 0] + D[2, 0]) / 3.0
-    my = (D[0, 1] + D[1, 1] + D[2, 1]) / 3.0
-    la = np.sqrt((D[0, 0] - mx) ** 2 + (D[0, 1] - my) ** 2)
-    lb = max(np.sqrt((D[1, 0] - mx) ** 2 + (D[1, 1] - my) ** 2), np.sqrt((D[2, 0] - mx) ** 2 + (D[2, 1] - my) ** 2))
-    lip = la + lb
-    if lip == 0.0:
-        return alpha_max
-    slack = 64.0 * 2.220446049250313e-16 * scale
-    g = _point_segment_distance(X[0, 0], X[0, 1], X[1, 0], X[1, 1], X[2, 0], X[2, 1])
-    target = keep * g
-    alpha = 0.0
-    for _ in range(max_advances):
-        step = (g - slack - target) / lip
-        if step <= 0.0:
-            return alpha
-        alpha += step
-        if alpha >= alpha_max:
-            return alpha_max
-        for r in range(3):
-            for c in range(2):
-                X[r, c] = V0[ids[r], c] + alpha * D[r, c]
-        g = _point_segment_distance(X[0, 0], X[0, 1], X[1, 0], X[1, 1], X[2, 0], X[2, 1])
-    return alpha
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _advance_all_2d(V0, dV, pairs, alpha_max, keep, max_advances, out):  # pragma: no cover - compiled
-    for i in prange(pairs.shape[0]):
-        out[i] = _advance_pair_2d(V0, dV, pairs[i], alpha_max, keep, max_advances)
+        out[i] = _advance_pair(V0, dV, pairs[i], kinds[i], alpha_max, keep, max_advances)
 
 
 def conservative_step_2d(
@@ -170,22 +138,11 @@ def conservative_step_2d(
 ) -> float:
     """2D: largest α ≤ ``alpha_max`` found by conservative advancement such that every pair's gap stays above
     ``keep`` times its gap at V0 along V0 → V0 + α(V1 − V0). ``pairs``: (k, 3) vertex ids, a point and a segment
-    (a vertex–vertex pair repeats its second vertex)."""
-    if pairs.shape[0] == 0 or alpha_max <= 0.0:
-        return float(max(alpha_max, 0.0))
-    V0 = np.ascontiguousarray(V0, dtype=float)
-    dV = np.ascontiguousarray(V1, dtype=float) - V0
-    out = np.empty(pairs.shape[0])
-    _advance_all_2d(
-        V0,
-        dV,
-        np.ascontiguousarray(pairs, dtype=np.int64),
-        float(alpha_max),
-        float(keep),
-        MAX_ADVANCES,
-        out,
-    )
-    return float(min(alpha_max, out.min()))
+    (a vertex–vertex pair repeats its second vertex). The 3D kernel on the plane z = 0."""
+    pairs = np.asarray(pairs, dtype=np.int64)
+    V0_3, V1_3 = (np.pad(np.asarray(V, dtype=float), ((0, 0), (0, 1))) for V in (V0, V1))
+    rows = np.concatenate([pairs, pairs[:, 2:3]], axis=1)  # the 4th stencil row repeats the segment's end
+    return _conservative_step(V0_3, V1_3, rows, np.full(pairs.shape[0], POINT_SEGMENT), alpha_max, keep)
 
 
 def candidate_pairs(
@@ -226,14 +183,14 @@ def near_pairs(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _distances_kernel(V, pairs, is_pt, out):  # pragma: no cover - compiled
+def _distances_kernel(V, pairs, kinds, out):  # pragma: no cover - compiled
     for i in prange(pairs.shape[0]):
         X = np.empty((4, 3))
         S = np.empty((4, 3))
         for r in range(4):
             for c in range(3):
                 X[r, c] = V[pairs[i, r], c]
-        out[i] = _pair_distance(X, S, is_pt[i])
+        out[i] = _pair_distance(X, S, kinds[i])
 
 
 def pair_distances(V: np.ndarray, pairs: np.ndarray, is_point_triangle: np.ndarray) -> np.ndarray:
@@ -242,7 +199,7 @@ def pair_distances(V: np.ndarray, pairs: np.ndarray, is_point_triangle: np.ndarr
     _distances_kernel(
         np.ascontiguousarray(V, dtype=float),
         np.ascontiguousarray(pairs, dtype=np.int64),
-        np.ascontiguousarray(is_point_triangle, dtype=bool),
+        _kinds(is_point_triangle),
         out,
     )
     return out
@@ -258,6 +215,13 @@ def conservative_step(
 ) -> float:
     """Largest α ≤ ``alpha_max`` found by conservative advancement such that every pair's gap stays above
     ``keep`` times its gap at V0 along V0 → V0 + α(V1 − V0)."""
+    return _conservative_step(V0, V1, pairs, _kinds(is_point_triangle), alpha_max, keep)
+
+
+def _conservative_step(
+    V0: np.ndarray, V1: np.ndarray, pairs: np.ndarray, kinds: np.ndarray, alpha_max: float, keep: float
+) -> float:
+    """:func:`conservative_step` for (k, 4) stencils of any pair kind (``POINT_TRIANGLE``, ...)."""
     if pairs.shape[0] == 0 or alpha_max <= 0.0:
         return float(max(alpha_max, 0.0))
     V0 = np.ascontiguousarray(V0, dtype=float)
@@ -267,7 +231,7 @@ def conservative_step(
         V0,
         dV,
         np.ascontiguousarray(pairs, dtype=np.int64),
-        np.ascontiguousarray(is_point_triangle, dtype=bool),
+        np.ascontiguousarray(kinds, dtype=np.int64),
         float(alpha_max),
         float(keep),
         MAX_ADVANCES,
