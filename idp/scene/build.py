@@ -24,7 +24,7 @@ from idp.mesh.surface import boundary_edges, boundary_faces, enclosed_volume, su
 from idp.mesh.types import SurfaceMesh, VolumeMesh
 from idp.output.parts import Part
 from idp.scene.build_handles import motion_from_spec, selection_from_spec
-from idp.solver.newton import NewtonSettings
+from idp.solver.newton import NewtonSettings, line_search_extrapolation
 from idp.stepper.dirichlet import DirichletTargets
 from idp.stepper.distortion import DistortionMonitor
 from idp.stepper.handles import Handle, HandleSet, check_static_overlaps
@@ -531,6 +531,7 @@ def build_scene(
     meta["guards_intersection"] = bool(c.enabled)
     s = scene.solver
     newton = NewtonSettings(
+        extrapolate=line_search_extrapolation(s.line_search_extrapolation, system.terms),
         tol=s.newton_tol,
         norm=s.newton_norm,
         max_iterations=s.max_newton_iterations,

@@ -97,10 +97,24 @@ class SolverConfig(_Model):
     linear_solver: Literal["auto", "cholmod", "scipy"] = "auto"
     check_every_iterate: Bool = False
     inversion_eta: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.1
+    # after a full Newton step, try 2×, 4×, ... up to this multiple while each is feasible and lowers the energy;
+    # "auto": 2p for p-norm energies with p > 1 (Newton falls short on a power law), else 1 (off)
+    line_search_extrapolation: Literal["auto"] | float = "auto"
     # guards (docs/scene-reference.md, "Running on shared machines"): a step's wall-clock limit in seconds, and the
     # memory a step may use ("4G", "512M" with powers of 1024, or a number of bytes) on top of the memory available
     max_step_seconds: PosFloat | None = None
     max_memory: int | str | None = None
+
+    @field_validator("line_search_extrapolation", mode="before")
+    @classmethod
+    def _extrapolation(cls, v: Any) -> Any:
+        if v == "auto" and isinstance(v, str):
+            return v
+        if _is_number(v):
+            if not (math.isfinite(v) and v >= 1):
+                raise ValueError(f'must be "auto" or a number >= 1 (1: off; got {v})')
+            return float(v)
+        raise ValueError(f'must be "auto" or a number >= 1 (1: off; got {v!r})')
 
     @field_validator("max_memory", mode="before")
     @classmethod
