@@ -118,6 +118,8 @@ def suite(data: Path) -> dict:
         "flow_font_Tao": (lambda: paper_scene("fig14_font_Tao.toml"), "full"),
         "repair_kick": (lambda: paper_scene("fig16_repair_kick.toml"), "full"),
         "repair_rumba": (lambda: paper_scene("fig16_repair_rumba.toml"), "full"),
+        "minmax_circle_sd1": (lambda: paper_scene("fig19_circle_sd1.toml"), "quick"),
+        "minmax_circle_sd10": (lambda: paper_scene("fig19_circle_sd10.toml"), "quick"),
         "minmax_arm_thicker_sd5": (lambda: paper_scene("fig20_arm_thicker_sd5.toml"), "full"),
         "minmax_arm_thicker_sd1": (lambda: paper_scene("fig20_arm_thicker_sd1.toml"), "full"),
         "uv_camelHead28K_sd10": (lambda: paper_scene("fig18_uv_camelHead28K_sd10.toml"), "full"),
