@@ -61,7 +61,8 @@ def line_search_extrapolation(setting: str | float, terms) -> float:
     of the way to its minimum, so where a p-norm energy's large distortions dominate (n = 2p in the stretch) full
     steps creep: Fig. 19's disk at p = 10 took 40–47 iterations a step, each accepted at α = 1 with the handle
     residual unchanged. Doubling the step while the energy keeps falling (every trial filtered like any other:
-    inversion filter and CCD) took it to 16–42 with the same worst distortion; at p = 1 it gains nothing."""
+    inversion filter and CCD) took it to 16–42 with the same worst distortion; at p = 1 it gains nothing. No
+    extension brings a pair closer than the full step did (see :meth:`StepSolver._extrapolate`)."""
     if setting != "auto":
         return float(setting)
     p = max((float(getattr(wt.term, "power", 1.0)) for wt in terms), default=1.0)
@@ -280,6 +281,12 @@ class StepSolver:
             alpha *= alpha_ccd
         return alpha, alpha_inv, alpha_ccd, cand
 
+    def _closest(self, ev) -> float:
+        """Distance of the closest pair within d̂ of a contact evaluation (inf: none, or no contact model)."""
+        if ev is None or ev.num_active == 0:
+            return math.inf
+        return float(self.system.contact.min_distance(ev))
+
     def _measure(self, p_free: np.ndarray) -> float:
         """Size of a Newton direction for the stopping rule (see the module docstring)."""
         if self.settings.norm == "rms":
@@ -309,9 +316,13 @@ class StepSolver:
 
     def _extrapolate(self, x, P, x_prev, ev, trial, res):
         """After an accepted full step ``trial`` = (x + P, its contact evaluation, energies): double the step
-        while the whole longer move x → x + αP is feasible (inversion filter and CCD, as any step) and lowers
-        the step energy further, up to ``settings.extrapolate``; returns (α, the trial taken)."""
+        while the whole longer move x → x + αP is feasible (inversion filter and CCD, as any step), lowers the
+        step energy further and brings no pair closer than the full step left the closest one, up to
+        ``settings.extrapolate``; returns (α, the trial taken). Longer steps that press pairs together do not
+        pay: they push them into the barrier's stiff range (arm10K p = 5, steps 94–100, extended without that
+        rule: more iterations and more steps short of their targets)."""
         cfg = self.settings
+        floor = self._closest(trial[1])
         alpha = 1.0
         while 2.0 * alpha <= cfg.extrapolate:
             a2 = 2.0 * alpha
@@ -323,7 +334,7 @@ class StepSolver:
             t = time.perf_counter()
             et, elt, bt = self._energy(xt, x_prev, evt)
             res.timings["line_search"] += time.perf_counter() - t
-            if not et < trial[2]:
+            if not et < trial[2] or self._closest(evt) < floor:
                 break
             alpha, trial = a2, (xt, evt, et, elt, bt)
         return alpha, trial
