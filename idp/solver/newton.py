@@ -67,8 +67,8 @@ def line_search_extrapolation(setting: str | float, terms) -> float:
     of the way to its minimum, so where a p-norm energy's large distortions dominate (n = 2p in the stretch) full
     steps creep: Fig. 19's disk at p = 10 took 40–47 iterations a step, each accepted at α = 1 with the handle
     residual unchanged. Doubling the step while the energy keeps falling (every trial filtered like any other:
-    inversion filter and CCD) took it to 16–42 with the same worst distortion; at p = 1 it gains nothing. No
-    extension closes a contact gap below half of what the full step left (see :meth:`StepSolver._extrapolate`)."""
+    inversion filter and CCD) took it to 16–42 with the same worst distortion; at p = 1 it gains nothing. Contact
+    limits it (see :meth:`StepSolver._extrapolate`)."""
     if setting != "auto":
         return float(setting)
     p = max((float(getattr(wt.term, "power", 1.0)) for wt in terms), default=1.0)
@@ -144,6 +144,7 @@ class StepSolver:
         self.iterate_checks = 0
         self._constraint = None
         self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
+        self._may_extend = False  # whether this iteration's full step may be extended (see _extrapolate)
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
@@ -313,7 +314,7 @@ class StepSolver:
             et, elt, bt = self._energy(xt, x_prev, evt)
             res.timings["line_search"] += time.perf_counter() - t
             if et <= energy:
-                if alpha == 1.0 and cfg.extrapolate > 1.0 and not any(a < 1.0 for a in res.ccd_alphas):
+                if alpha == 1.0 and self._may_extend and not any(a < 1.0 for a in res.ccd_alphas):
                     alpha, trial = self._extrapolate(x, P, x_prev, ev, (xt, evt, et, elt, bt), res)
                     return True, alpha, alpha_inv, alpha_ccd, trial
                 return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
@@ -324,11 +325,11 @@ class StepSolver:
         """After an accepted full step ``trial`` = (x + P, its contact evaluation, energies): double the step
         while the whole longer move x → x + αP is feasible (inversion filter and CCD, as any step), lowers the
         step energy further and keeps every pair at least ``EXTEND_GAP_SHARE`` of the closest gap the full step
-        left, up to
-        ``settings.extrapolate``; returns (α, the trial taken). Called only while no earlier iteration of the step
-        was cut by CCD: once contact limits the steps, longer ones do not pay (arm10K p = 5, steps 94–100 as the
-        elbow closes, extended throughout: 189 of 200 iterations extended in step 94, capped short of its
-        targets; 5 such steps against 2 without extension)."""
+        left, up to ``settings.extrapolate``; returns (α, the trial taken). Called only while no earlier iteration
+        of the step was cut by CCD (once contact limits the steps, longer ones do not pay: arm10K p = 5, steps
+        94–100 as the elbow closes, extended throughout: 189 of 200 iterations extended in step 94, capped short of
+        its targets; 5 such steps against 2 without extension) and never when kinematic tools move with the step
+        (a longer step would carry them past their targets)."""
         cfg = self.settings
         floor = self._closest(trial[1])
         alpha = 1.0
@@ -563,6 +564,7 @@ class StepSolver:
                 P[tool_vertices] += qk * tool_move_k
 
             # feasible step: inversion filter, then CCD on the shortened step, then backtracking
+            self._may_extend = cfg.extrapolate > 1.0 and not tools
             accepted, alpha, alpha_inv, alpha_ccd, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
             res.inversion_alphas.append(alpha_inv)
             res.decrements.append(res.decrement)
