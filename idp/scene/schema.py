@@ -61,9 +61,9 @@ from idp.scene.schema_base import (
     Scale,
     Vec2,
     Vec3,
+    _auto_or_number,
     _check_box,
     _check_scale,
-    _is_number,
     _Model,
     check_corner_box,
     rule_error,
@@ -108,13 +108,7 @@ class SolverConfig(_Model):
     @field_validator("line_search_extrapolation", mode="before")
     @classmethod
     def _extrapolation(cls, v: Any) -> Any:
-        if v == "auto" and isinstance(v, str):
-            return v
-        if _is_number(v):
-            if not (math.isfinite(v) and v >= 1):
-                raise ValueError(f'must be "auto" or a number >= 1 (1: off; got {v})')
-            return float(v)
-        raise ValueError(f'must be "auto" or a number >= 1 (1: off; got {v!r})')
+        return _auto_or_number(v, 1.0, inclusive=True, note=" (1: off)")
 
     @field_validator("max_memory", mode="before")
     @classmethod
@@ -154,13 +148,7 @@ class ContactConfig(_Model):
     @field_validator("kappa", mode="before")
     @classmethod
     def _kappa(cls, v: Any) -> Any:
-        if v == "auto" and isinstance(v, str):
-            return v
-        if _is_number(v):
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f'must be "auto" or a number > 0 (got {v})')
-            return float(v)
-        raise ValueError(f'must be "auto" or a number > 0 (got {v!r})')
+        return _auto_or_number(v, 0.0, inclusive=False)
 
 
 class OutputConfig(_Model):

@@ -66,6 +66,18 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+def _auto_or_number(v: Any, lowest: float, inclusive: bool, note: str = "") -> Any:
+    """Accept the string "auto" or a finite number above ``lowest`` (or equal to it when ``inclusive``), as float."""
+    if v == "auto" and isinstance(v, str):
+        return v
+    bound = f'must be "auto" or a number {">=" if inclusive else ">"} {lowest:g}{note}'
+    if _is_number(v):
+        if not (math.isfinite(v) and (v >= lowest if inclusive else v > lowest)):
+            raise ValueError(f"{bound} (got {v})")
+        return float(v)
+    raise ValueError(f"{bound} (got {v!r})")
+
+
 def _check_scale(v: Any) -> Any:
     """Accept a positive number or a list of positive numbers (clear single message otherwise)."""
     if _is_number(v):

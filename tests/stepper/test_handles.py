@@ -92,11 +92,16 @@ def test_penalty_doubles_near_convergence_and_is_dropped_once_the_targets_are_me
     assert held[[1, 2]].all() and not held[[0, 3]].any()
 
 
-def test_blocked_targets_stop_the_doubling():
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+def _one_handle(target: float = 1.0, **settings) -> tuple[DirichletTargets, np.ndarray]:
+    """Two 1D vertices of unit mass, vertex 0 bound to ``target`` from x = 0 (no feasible move: the penalty pulls)."""
+    bc = DirichletTargets(np.ones(2), 1, **settings)
     x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[1.0]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc.set_targets(np.array([0]), np.array([[target]]))
+    return bc, bc.begin(x, lambda x, P: 0.0)
+
+
+def test_blocked_targets_stop_the_doubling():
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
     x[0] = 0.5
     assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]  # first doubling
     x[0] = 0.502  # less than 1 % closer after the doubling: one more doubling to see whether gains grow
@@ -110,10 +115,7 @@ def test_growing_small_gains_keep_doubling():
     """Against an elastic stiffness K ≫ κ_B the residual shrinks by κ/(K + 2κ) per doubling: small, but growing
     with κ — not a block."""
     K, kappa0, target = 1e4, 1.0, 1.0
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=kappa0, min_progress=0.1)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[target]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(target, tolerance=1e-6, kappa_initial=kappa0, min_progress=0.1)
     for _ in range(12):  # the penalised minimum of K/2 x² + κ/2 (x − 1)² for the current κ
         x[0] = bc.kappa / (K + bc.kappa) * target
         _, changed = bc.after_iterate(x, True, lambda x, P: 0.0)
@@ -125,10 +127,7 @@ def test_multiplier_meets_targets_that_the_capped_penalty_cannot():
     """κ_B at its cap against an elastic stiffness K ≫ κ_B, nothing in contact: augmented-Lagrangian updates
     λ ← λ − κ m (x − x̃) carry the handle onto its target (the penalised minimum alone stays at κ/(K + κ))."""
     K, target = 4.0, 1.0  # each update shrinks the residual by K / (K + κ) = 0.8: 21 updates reach 1e-2
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-2, kappa_initial=1.0, max_doublings=0)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[target]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(target, tolerance=1e-2, kappa_initial=1.0, max_doublings=0)
     for _ in range(bc.max_multiplier_updates + 1):
         # the minimum of K/2 x² + κ/2 (x − 1)² − λ (x − 1): the gradient in x is zero there
         x[0] = (bc.kappa * target + _multiplier(bc)) / (K + bc.kappa)
@@ -144,10 +143,7 @@ def test_multiplier_meets_targets_that_the_capped_penalty_cannot():
 
 def test_no_multiplier_update_in_contact():
     """Against contact the capped penalty is a block, as before: the multiplier would only press the gap shut."""
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, max_doublings=0)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[1.0]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, max_doublings=0)
     x[0] = 0.2
     assert bc.after_iterate(x, True, lambda x, P: 0.0, in_contact=True) == (x, False)
     assert bc.settled and not bc.met and bc.multiplier_updates == 0
@@ -161,10 +157,7 @@ def _multiplier(bc: DirichletTargets) -> float:
 
 def test_stalled_targets_are_frozen_where_they_are():
     """Away from convergence, stall_iterations iterates without min_progress gain hold the handle in place."""
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[1.0]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
     x[0] = 0.5
     for k in range(5):  # the first call sets the best residual, four more without progress
         assert bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=True) == (x, False), k
@@ -179,10 +172,7 @@ def test_stalled_targets_are_frozen_where_they_are():
 
 def test_without_contact_shrinking_gains_keep_doubling():
     """Only contact blocks a target: with no pair within d̂, κ_B doubles on whatever the gains do."""
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, min_progress=0.1)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[1.0]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.1)
     for k in range(6):
         x[0] = 0.5 + 0.001 * k  # gains of ~0.2 %, not growing
         _, changed = bc.after_iterate(x, True, lambda x, P: 0.0, in_contact=False)
@@ -193,10 +183,7 @@ def test_without_contact_shrinking_gains_keep_doubling():
 def test_slow_newton_without_contact_is_not_taken_for_a_stall():
     """Iterates that CCD did not cut (Newton creeping towards the penalised minimum of a stiff energy) never
     freeze the handles: the §4.3 doubling near convergence decides."""
-    bc = DirichletTargets(np.ones(2), 1, tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
-    x = np.zeros((2, 1))
-    bc.set_targets(np.array([0]), np.array([[1.0]]))
-    x = bc.begin(x, lambda x, P: 0.0)
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
     x[0] = 0.5
     for k in range(20):  # nothing cut, or cut by CCD with no pair within d̂
         assert bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=k % 2 == 1, in_contact=False) == (
