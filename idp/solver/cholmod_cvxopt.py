@@ -94,6 +94,11 @@ class CholmodSolver(LinearSolver):
         self._factored = False
         self.union_growth = 1.3  # analyse the union of old and new patterns while it stays this small
 
+    def _fresh(self) -> CholmodSolver:
+        other = CholmodSolver(self.dofs_per_node, use_metis=self.use_metis, reuse_ordering=self.reuse_ordering)
+        other.union_growth = self.union_growth
+        return other
+
     # ------------------------------------------------------------------ pattern work
     def _analyse_lower(self, keys: np.ndarray, vals: np.ndarray, n: int) -> None:
         """Ordering + symbolic factorisation of the lower-triangle pattern given by ``keys``."""

@@ -281,6 +281,18 @@ class LinearSolver(ABC):
         """Zero the timing and count statistics."""
         self.stats = _new_stats()
 
+    def sibling(self) -> LinearSolver:
+        """A solver of the same kind and settings with its own pattern work (a second system solved beside this
+        one, e.g. :class:`idp.solver.held_reduction.HeldReduction`'s), counting into the same ``stats`` and
+        checked by the same memory guard."""
+        other = self._fresh()
+        other.stats = self.stats
+        other.memory_guard = self.memory_guard
+        return other
+
+    def _fresh(self) -> LinearSolver:
+        return type(self)(dofs_per_node=self.dofs_per_node)
+
     def _check_rhs(self, b: np.ndarray) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         if b.shape[0] != self.n or b.ndim not in (1, 2):
@@ -326,6 +338,9 @@ class ScipySolver(LinearSolver):
         self._pindices: np.ndarray | None = None
         self._pmap: np.ndarray | None = None
         self._lu: Any = None
+
+    def _fresh(self) -> ScipySolver:
+        return ScipySolver(dofs_per_node=self.dofs_per_node, use_metis=self.use_metis)
 
     def _analyse(self, indptr: np.ndarray, indices: np.ndarray, n: int) -> None:
         """Ordering and data map of the permuted matrix for a new pattern."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,7 @@ from idp._faults import kill_point
 from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
+from idp.solver.held_reduction import HeldReduction, keeps_vertex_groups
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
 from idp.solver.memory import MemoryGuard, step_overhead_bytes
 from idp.solver.pcg import pcg_from_majorant
@@ -91,6 +93,9 @@ class NewtonSettings:
     max_seconds: float | None = None  # wall-clock limit of one step (checked after each accepted iterate)
     max_memory: int | None = None  # bytes a step may use (on top of the memory available; None: that alone)
     memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
+    # factorise only the DOFs not held when the held ones are whole vertices (idp.solver.held_reduction); the
+    # same direction either way, up to rounding
+    reduce_held: bool = True
 
 
 @dataclass
@@ -140,6 +145,8 @@ class StepSolver:
         self.system = system
         self.settings = settings
         self.linear = linear_solver
+        self._reduction: HeldReduction | None = None  # the factorisation without held DOFs, made when first needed
+        self._last_solve: Callable[[np.ndarray], np.ndarray] = linear_solver.solve  # solve of the last factor
         self.certifier = certifier
         self.iterate_checks = 0
         self._constraint = None
@@ -371,12 +378,32 @@ class StepSolver:
         H.data[cache[2]] = 0.0
         return H
 
+    def _factorize(self, H) -> Callable[[np.ndarray], np.ndarray]:
+        """Factorise ``H`` (held rows and columns zeroed by :meth:`_hold`) and return the solve of that factor: on
+        the DOFs not held alone when the held DOFs are whole vertices (:mod:`idp.solver.held_reduction`; the held
+        zeros would otherwise be factorised as entries), else on ``H`` as it stands."""
+        held = self._held
+        if (
+            held is not None
+            and self.settings.reduce_held
+            and H.format == "csr"
+            and H.has_canonical_format
+            and keeps_vertex_groups(held, self.linear.dofs_per_node)
+        ):
+            if self._reduction is None:
+                self._reduction = HeldReduction(self.linear.sibling())
+            self._reduction.factorize(H, held)
+            self._last_solve = self._reduction.solve
+        else:
+            self.linear.factorize(H)
+            self._last_solve = self.linear.solve
+        return self._last_solve
+
     def _direction(self, H, g: np.ndarray, res: NewtonResult) -> np.ndarray:
         """Newton direction −H⁻¹g on the free DOFs (diagonally scaled gradient if H is not PD)."""
         t = time.perf_counter()
         try:
-            self.linear.factorize(H)
-            p_free = -self.linear.solve(g)
+            p_free = -self._factorize(H)(g)
             if not np.all(np.isfinite(p_free)):
                 raise NotPositiveDefinite("non-finite Newton direction")
         except NotPositiveDefinite:
@@ -419,9 +446,9 @@ class StepSolver:
                 Ct[self._held] = 0.0
         t = time.perf_counter()
         try:
-            self.linear.factorize(H)
-            p0 = -self.linear.solve(g)
-            Y = np.column_stack([self.linear.solve(Ct[:, k]) for k in range(m)]) if np.any(Ct) else np.zeros_like(Ct)
+            solve = self._factorize(H)
+            p0 = -solve(g)
+            Y = np.column_stack([solve(Ct[:, k]) for k in range(m)]) if np.any(Ct) else np.zeros_like(Ct)
             schur = D - Ct.T @ Y
             q = np.linalg.solve(schur, -g_s - Ct.T @ p0)
             p_free = p0 - Y @ q
@@ -453,7 +480,7 @@ class StepSolver:
                     return M @ v + K @ v
                 return M @ v + keep * (K @ (keep * v))
 
-            p, its, ok = pcg_from_majorant(apply, self.linear.solve, -g, p_folded, cfg.pcg_rtol, cfg.pcg_max_iterations)
+            p, its, ok = pcg_from_majorant(apply, self._last_solve, -g, p_folded, cfg.pcg_rtol, cfg.pcg_max_iterations)
         except SolverError:  # no usable factor of M (its direction was a gradient-descent fallback)
             its, ok = 0, False
         res.timings["linear_solve"] += time.perf_counter() - t
