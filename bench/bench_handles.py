@@ -129,7 +129,16 @@ def main() -> None:
     ap.add_argument("-o", "--output", type=Path, default=Path("bench/results/handles"))
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=40, help="interleaved repeats of the same-state timings")
+    ap.add_argument(
+        "--held-in-matrix",
+        action="store_true",
+        help="factorise held DOFs as identity rows of the whole matrix, as before idp.solver.held_reduction",
+    )
     a = ap.parse_args()
+    if a.held_in_matrix:  # the Newton loop's test for the reduction, made to say no
+        import idp.solver.newton
+
+        idp.solver.newton.keeps_vertex_groups = lambda held, dofs_per_node: False
     a.output.mkdir(parents=True, exist_ok=True)
 
     scenes = _scenes(a.steps)

@@ -93,9 +93,6 @@ class NewtonSettings:
     max_seconds: float | None = None  # wall-clock limit of one step (checked after each accepted iterate)
     max_memory: int | None = None  # bytes a step may use (on top of the memory available; None: that alone)
     memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
-    # factorise only the DOFs not held when the held ones are whole vertices (idp.solver.held_reduction); the
-    # same direction either way, up to rounding
-    reduce_held: bool = True
 
 
 @dataclass
@@ -385,7 +382,6 @@ class StepSolver:
         held = self._held
         if (
             held is not None
-            and self.settings.reduce_held
             and H.format == "csr"
             and H.has_canonical_format
             and keeps_vertex_groups(held, self.linear.dofs_per_node)
