@@ -201,6 +201,7 @@ def _cmd_repair(args) -> int:
         thickness=args.thickness,
         bending=args.bending,
         newton_tol=args.newton_tol,
+        kappa_b=args.kappa_b,
     )
     result = run_repair(scene, out, progress=not args.quiet, resume=args.resume, force_resume=args.force)
     return _finish(result, out)
@@ -494,6 +495,12 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--thickness", type=float, default=0.01)
     rp.add_argument("--bending", type=float, default=1.0, help="bending multiplier (0: membrane only)")
     rp.add_argument("--newton-tol", type=float, help="RMS Newton step per vertex / dt to stop at (default 1e-3)")
+    rp.add_argument(
+        "--kappa-b",
+        type=float,
+        help="initial penalty pulling --fixed vertices onto the input when their move collides (default 1e4; "
+        "1e8 when a fixed group passes through itself in the input, see docs/animation-repair.md)",
+    )
     rp.add_argument("--threads", type=_thread_count)
     rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")
     rp.add_argument("--force", action="store_true", help="with --resume: go on even though the scene changed")

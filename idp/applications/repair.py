@@ -89,10 +89,13 @@ def repair_scene(
     density: float = 1000.0,
     h: float = 0.04**2,
     newton_tol: float | None = None,
+    kappa_b: float | None = None,
     name: str | None = None,
 ) -> Scene:
     """A validated repair scene for ``sequence`` (see :class:`idp.scene.repair_schema.RepairConfig`); the
-    defaults are the authors' mannequin set-up (d̂ = 1e-2, E = 100, thickness 0.01, bending 1, dt = 0.04)."""
+    defaults are the authors' mannequin set-up (d̂ = 1e-2, E = 100, thickness 0.01, bending 1, dt = 0.04).
+    ``kappa_b``: the initial §4.3 penalty κ_B that pulls prescribed vertices onto the input when their straight
+    move collides (default the scene default, 1e4; docs/animation-repair.md measures when a large start pays)."""
     doc: dict[str, Any] = {
         "name": name or Path(str(sequence)).stem.replace("*", "") or "repair",
         "dim": 3,
@@ -122,6 +125,8 @@ def repair_scene(
             }
         ],
     }
+    if kappa_b is not None:
+        doc["dirichlet"] = {"kappa_initial": float(kappa_b)}
     if stop is not None:
         doc["repair"]["stop"] = int(stop)
     if usd_prim is not None:

@@ -251,6 +251,7 @@ def test_cli_arguments_are_checked_with_clear_errors(tmp_path, capsys):
         (["--frames", "2:3"], "at least start + 2"),
         (["--fixed", "box:1,2,3"], "6 numbers"),
         (["--fixed", "sphere:1"], "expected box"),
+        (["--kappa-b", "-1"], "dirichlet.kappa_initial"),
     ]:
         assert main(["repair", str(inp), "-o", str(tmp_path / "o"), "-q", *args]) == 2
         assert message in capsys.readouterr().err
