@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from idp.errors import SolverError
 from idp.solver.linear import LinearSolver, NotPositiveDefinite, PatternCache
 
 
@@ -44,6 +45,7 @@ class HeldReduction:
         self._held: np.ndarray | None = None
         self._map: tuple[np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._held_diagonal: np.ndarray | None = None
+        self._factored = False
 
     def _index_map(self, H: sp.csr_matrix, held: np.ndarray) -> None:
         """Positions in ``H.data`` of the kept block's entries and that block's own (read-only) pattern."""
@@ -75,6 +77,7 @@ class HeldReduction:
     def factorize(self, H: sp.csr_matrix, held: np.ndarray) -> None:
         """Factorise the block of ``H`` (canonical CSR, rows and columns of held DOFs zeroed but for the diagonal)
         that the DOFs not in ``held`` form."""
+        self._factored = False
         if (
             self._map is None
             or self._held is None
@@ -89,10 +92,12 @@ class HeldReduction:
         if np.any(self._held_diagonal <= 0.0):
             raise NotPositiveDefinite("a held DOF has a non-positive diagonal entry")
         self.backend.factorize(block)
+        self._factored = True
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """The solution of the full zeroed system for ``b`` of shape (n,) or (n, k)."""
-        assert self._map is not None and self._held_diagonal is not None
+        if not self._factored or self._map is None or self._held_diagonal is None:
+            raise SolverError("solve() called without a successful factorize()")
         _, _, kept, held_rows, _ = self._map
         b = np.asarray(b, dtype=np.float64)
         x = np.empty_like(b)

@@ -388,11 +388,11 @@ class StepSolver:
         ):
             if self._reduction is None:
                 self._reduction = HeldReduction(self.linear.sibling())
+            self._last_solve = self._reduction.solve  # (set first: after a failed factorisation its solve refuses)
             self._reduction.factorize(H, held)
-            self._last_solve = self._reduction.solve
         else:
-            self.linear.factorize(H)
             self._last_solve = self.linear.solve
+            self.linear.factorize(H)
         return self._last_solve
 
     def _direction(self, H, g: np.ndarray, res: NewtonResult) -> np.ndarray:

@@ -7,6 +7,7 @@ import pytest
 import scipy.sparse as sp
 from test_linear import BACKENDS, make_matrix, new_solver  # type: ignore[import-not-found]
 
+from idp.errors import SolverError
 from idp.solver.held_reduction import HeldReduction, keeps_vertex_groups
 from idp.solver.linear import NotPositiveDefinite, ScipySolver
 
@@ -91,5 +92,9 @@ def test_a_non_positive_held_diagonal_is_not_positive_definite() -> None:
     rows = np.repeat(np.arange(H.shape[0]), np.diff(H.indptr))
     first = np.flatnonzero(held)[0]
     H.data[(rows == first) & (H.indices == first)] = -1.0
+    red = HeldReduction(ScipySolver(dofs_per_node=3))
+    red.factorize(zeroed(A, held), held)
     with pytest.raises(NotPositiveDefinite):
-        HeldReduction(ScipySolver(dofs_per_node=3)).factorize(H, held)
+        red.factorize(H, held)
+    with pytest.raises(SolverError):  # no stale factor answers after a failed factorisation
+        red.solve(np.ones(H.shape[0]))
