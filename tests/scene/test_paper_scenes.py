@@ -33,9 +33,15 @@ def test_paper_scene_builds(path):
     staged = any(h for st in scene.stages for ob in st.set.values() for h in (ob.handles or [])) or any(
         ob.motion is not None for st in scene.stages for ob in st.add
     )
-    assert handles or flows or repairs or uv or staged, (
-        "every paper scene is driven by handles (also a stage's), a flow, a repair or is a UV map"
+    grown = any(ob.rest_shape is not None and ob.rest_shape.growth_steps for ob in scene.objects) and any(
+        r.type == "scale" for st in scene.stages for ob in st.set.values() for r in (ob.rest_scripts or [])
     )
+    assert handles or flows or repairs or uv or staged or grown, (
+        "every paper scene is driven by handles (also a stage's), a flow, a repair, growth in stages or is a UV map"
+    )
+    if path.stem == "fig09_hourglass_staged":  # grown in stages, baked and remeshed finer between them
+        assert [st.after.get("bunny") for st in scene.stages] == ["bake_remesh", "bake_remesh", None]
+        assert all(st.remesh.refine_surface and st.remesh.max_volume for st in scene.stages[:2])
     if uv:  # Fig. 18: the stored layouts (manifest: vt 28,382 / 22,945, all UV triangles positive)
         (obj,) = uv.values()
         assert obj.mesh.uv.shape[0] in (28382, 22945) and not obj.mirrored
