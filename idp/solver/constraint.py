@@ -63,9 +63,11 @@ class StepConstraint(Protocol):
         feasible_step: FeasibleStep,
         contact_limited: bool = False,
         in_contact: bool = True,
+        ccd_fraction: float = 1.0,
     ) -> tuple[np.ndarray, bool]:
         """After an accepted iterate: (possibly snapped x, whether the objective changed); ``contact_limited``:
-        the iterate's step was cut by CCD; ``in_contact``: some contact pair is within d̂ at x."""
+        the iterate's step was cut by CCD (to ``ccd_fraction`` of the Newton step); ``in_contact``: some contact
+        pair is within d̂ at x."""
         ...
 
     @property

@@ -277,18 +277,24 @@ class StepSolver:
         alpha_ccd = 1.0
         cand = None
         if s.contact is not None and alpha > 0:
-            x_end = x + alpha * P
-            t = time.perf_counter()
-            cand = s.contact.sweep_candidates(x, x_end, moving_only=ccd_only)
-            t1 = time.perf_counter()
             if ev is None and not ccd_only:
                 ev = self._contact_eval(x, res)
             gap = None if ev is None else s.contact.min_distance(ev)  # None: from the moving candidates
+            t = time.perf_counter()
+            # a pair already squeezed below 1e-4·d̂ may allow only a sliver of the move: sweep only that sliver
+            # (ContactModel.near_contact_step_bound), then CCD checks it like any move
+            short = s.contact.near_contact_step_bound(x, x + alpha * P, gap)
+            res.timings["ccd"] += time.perf_counter() - t
+            x_end = x + (alpha * short) * P
+            t = time.perf_counter()
+            cand = s.contact.sweep_candidates(x, x_end, moving_only=ccd_only)
+            t1 = time.perf_counter()
             alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, gap, ev)
             t2 = time.perf_counter()
             cand = s.contact.line_search_candidates(cand, alpha_ccd)
             res.timings["contact_build"] += t1 - t + time.perf_counter() - t2
             res.timings["ccd"] += t2 - t1
+            alpha_ccd *= short
             alpha *= alpha_ccd
         return alpha, alpha_inv, alpha_ccd, cand
 
@@ -614,7 +620,12 @@ class StepSolver:
             if c is not None:
                 in_contact = ev is not None and ev.num_active > 0
                 x_new, changed = c.after_iterate(
-                    x, converged, feasible, contact_limited=alpha_ccd < 1.0, in_contact=in_contact
+                    x,
+                    converged,
+                    feasible,
+                    contact_limited=alpha_ccd < 1.0,
+                    in_contact=in_contact,
+                    ccd_fraction=alpha_ccd,
                 )
                 moved = x_new is not x  # bound vertices snapped onto their targets (a feasible move)
                 x = x_new

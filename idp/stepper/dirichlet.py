@@ -23,6 +23,8 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    from convergence: when ``stall_iterations`` (30) Newton iterates whose steps CCD cut bring the worst bound
    vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held
    where they are and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
+   An iterate whose cut step is ``STEP_GROWTH`` (1.5) times longer than every earlier cut step of the solve does
+   not count: the pair that cuts the steps is opening.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other), or, when that last move would collide, held where
    they are (met within the tolerance, the residual reported); the penalty is dropped and Newton continues to
@@ -53,6 +55,13 @@ import math
 import numpy as np
 
 from idp.solver.constraint import FeasibleStep
+
+#: A CCD-cut Newton step at least this much longer (as a fraction of its Newton step) than every earlier cut step of
+#: the same solve does not count as stalled: the contact that cuts the steps is opening. A head pressed onto a pair
+#: squeezed to ~1e-14 (Kick frame 52) advances 1e-7 of its Newton step, then each iterate a little more while the
+#: barrier opens the pair, until it moves freely after ~30 iterations. Each such iterate may pass over at most a
+#: factor 1.5: from a 1e-9 step at most 51 iterates go uncounted.
+STEP_GROWTH = 1.5
 
 
 class DirichletTargets:
@@ -117,6 +126,7 @@ class DirichletTargets:
         self._last_gain: float | None = None
         self._best_residual: float | None = None
         self._stalled = 0
+        self._widest_cut = 0.0  # the largest fraction CCD has left of a Newton step in this step
         self.feasible_fraction = 1.0
         self.doublings = 0
         self.multiplier_updates = 0
@@ -249,6 +259,7 @@ class DirichletTargets:
         feasible_step: FeasibleStep,
         contact_limited: bool = False,
         in_contact: bool = True,
+        ccd_fraction: float = 1.0,
     ) -> tuple[np.ndarray, bool]:
         if self._met:
             return x, False
@@ -275,8 +286,12 @@ class DirichletTargets:
             pen = float(dist[self._penalised].max())
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
+            elif contact_limited and ccd_fraction >= STEP_GROWTH * self._widest_cut:
+                pass  # CCD cuts the steps less and less: the pair that cuts them is opening (not a stall)
             elif contact_limited and in_contact and self.detect_blocked:
                 self._stalled += 1
+            if contact_limited:
+                self._widest_cut = max(self._widest_cut, ccd_fraction)
                 if self._stalled >= self.stall_iterations:
                     self._hold(met=False)
                     self._blocked = True
