@@ -170,6 +170,28 @@ def test_stalled_targets_are_frozen_where_they_are():
     assert bc.held_dofs()[0] and not bc.held_dofs()[1] and bc.penalty_value(x) == 0.0
 
 
+def test_cut_steps_that_keep_growing_are_not_a_stall():
+    """A handle pressed onto a pair squeezed to ~1e-14 advances a sliver per iterate while the barrier opens the
+    pair (Kick frame 52): iterates whose CCD-cut step is STEP_GROWTH times longer than every earlier cut step do
+    not count as stalled; once the cut steps stop growing, the stall is counted again."""
+    from idp.stepper.dirichlet import STEP_GROWTH
+
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, stall_iterations=5)
+    x[0] = 0.5
+    fraction = 1e-9
+    for k in range(12):  # no residual progress, but each cut step twice the last
+        assert bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=True, ccd_fraction=fraction) == (
+            x,
+            False,
+        ), k
+        fraction *= 2.0 * STEP_GROWTH / 1.5
+    assert not bc.settled and not bc.frozen
+    fraction /= 2.0  # the last cut step's length, from now on
+    for _ in range(5):  # now the cut steps stay as they are: five stalled iterates freeze the handle
+        _, changed = bc.after_iterate(x, False, lambda x, P: 0.0, contact_limited=True, ccd_fraction=fraction)
+    assert changed and bc.frozen and bc.settled and not bc.met
+
+
 def test_without_contact_shrinking_gains_keep_doubling():
     """Only contact blocks a target: with no pair within d̂, κ_B doubles on whatever the gains do."""
     bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.1)
