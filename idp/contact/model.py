@@ -461,21 +461,26 @@ class ContactModel:
         if candidates is None:
             candidates = self._candidates(v0, v1)
         fv, ee = candidates
-        # with no gap given, which narrow phase to use is known only after d(0): bound for both in one pass
-        fallback = float(self._fallback_ccd.conservative_rescaling) if current_min_distance is None else None
-        dist, speed, first, first_fallback = ccd_filter.move_bounds(
-            v0, v1, self._faces, self._edges, fv, ee, float(self._ccd.conservative_rescaling), fallback
-        )
-        if current_min_distance is None:
+        if current_min_distance is not None:  # the narrow phase is known: bound the candidates with its rescaling
+            ccd, near_contact = self._choose_ccd(current_min_distance)
+            dist, speed, first, _ = ccd_filter.move_bounds(
+                v0, v1, self._faces, self._edges, fv, ee, float(ccd.conservative_rescaling)
+            )
+        else:  # known only after d(0): bound for both narrow phases in one pass
+            dist, speed, first, first_fallback = ccd_filter.move_bounds(
+                v0,
+                v1,
+                self._faces,
+                self._edges,
+                fv,
+                ee,
+                float(self._ccd.conservative_rescaling),
+                float(self._fallback_ccd.conservative_rescaling),
+            )
             moving = speed > 0.0
-            current_min_distance = float(dist[moving].min()) if moving.any() else np.inf
-        ccd, near_contact = self._choose_ccd(current_min_distance)
-        if ccd is not self._ccd:  # the fallback's own rescaling decides which pairs its narrow phase must see
-            if first_fallback is None:
-                first_fallback = ccd_filter.move_bounds(
-                    v0, v1, self._faces, self._edges, fv, ee, float(ccd.conservative_rescaling)
-                )[2]
-            first = first_fallback
+            ccd, near_contact = self._choose_ccd(float(dist[moving].min()) if moving.any() else np.inf)
+            if ccd is not self._ccd and first_fallback is not None:  # (asked for: never None here)
+                first = first_fallback  # the fallback's own rescaling decides which pairs its narrow phase must see
         bounds = (dist, speed, first)
         alpha = self._filtered_ccd(v0, v1, candidates, ccd, bounds)
         if near_contact:

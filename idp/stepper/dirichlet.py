@@ -284,14 +284,15 @@ class DirichletTargets:
             # p-norm takes many, and its overshooting steps may be cut by CCD far from any contact): they neither
             # count as stalled nor reset the count.
             pen = float(dist[self._penalised].max())
+            opening = contact_limited and ccd_fraction >= STEP_GROWTH * self._widest_cut
+            if contact_limited:
+                self._widest_cut = max(self._widest_cut, ccd_fraction)
             if self._best_residual is None or pen < (1.0 - self.min_progress) * self._best_residual:
                 self._best_residual, self._stalled = pen, 0
-            elif contact_limited and ccd_fraction >= STEP_GROWTH * self._widest_cut:
+            elif opening:
                 pass  # CCD cuts the steps less and less: the pair that cuts them is opening (not a stall)
             elif contact_limited and in_contact and self.detect_blocked:
                 self._stalled += 1
-            if contact_limited:
-                self._widest_cut = max(self._widest_cut, ccd_fraction)
                 if self._stalled >= self.stall_iterations:
                     self._hold(met=False)
                     self._blocked = True
