@@ -2,8 +2,10 @@
 
 For each frame of the input both outputs are measured the same way: crossing edge–triangle pairs that are not
 among the input's first-frame crossings (idp.contact.intersections.intersecting_pair_keys, the check behind the
-repair report), and the deviation from the input frame (largest per vertex, largest per coordinate, mean per
-vertex). Writes JSON and prints a Markdown table of the sequence summary.
+repair report), split into those among the prescribed vertices only (the head box, ``--prescribed``; of those,
+how many also cross in the input frame) and the others, the deviation from the input frame (largest per vertex,
+largest per coordinate, mean per vertex) and the prescribed vertices' largest deviation. Writes JSON and prints a
+Markdown table of the sequence summary.
 
     python bench/repair_vs_authors.py runs/kick_full/Kick_unfixed.npz --input data:repair/Kick_unfixed.npz \\
         --authors data:repair/Kick_fixed.npz -o bench/results/kick_vs_authors.json
@@ -28,7 +30,7 @@ def _load(path: str) -> np.ndarray:
     if Path(path).is_dir():
         frames = sorted(Path(path).glob("frame_*.npy"))
         return np.stack([np.load(f) for f in frames]).astype(float)
-    with np.load(resolve_data_path(path)) as d:
+    with np.load(path if Path(path).exists() else resolve_data_path(path)) as d:
         return np.asarray(d["vertices"], dtype=float)
 
 
@@ -53,6 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--input", required=True, help="the input sequence (data:repair/…_unfixed.npz)")
     ap.add_argument("--authors", required=True, help="the authors' repaired sequence (data:repair/…_fixed.npz)")
     ap.add_argument("--frames", default=None, help="A:B, frames to compare (default: those idp wrote)")
+    ap.add_argument(
+        "--prescribed",
+        default="-0.1,0.867,-0.1,1.1,1.1,1.1",
+        help="the prescribed box x0,y0,z0,x1,y1,z1 relative to the first input frame's bounding box (the head)",
+    )
     ap.add_argument("-o", "--output", type=Path, required=True, help="JSON file to write")
     args = ap.parse_args(argv)
 
@@ -60,12 +67,29 @@ def main(argv: list[str] | None = None) -> int:
     faces = _faces(args.input)
     first, stop = (0, ours.shape[0]) if args.frames is None else map(int, args.frames.split(":"))
     first_frame_keys = intersecting_pair_keys(inp[0], faces)
+    box = np.array([float(v) for v in args.prescribed.split(",")]).reshape(2, 3)
+    lo, hi = inp[0].min(axis=0), inp[0].max(axis=0)
+    rel = (inp[0] - lo) / (hi - lo)
+    group = np.all((rel >= box[0]) & (rel <= box[1]), axis=1)
+
+    def among_group(key) -> bool:
+        return bool(group[list(key[0])].all() and group[list(key[1])].all())
+
     rows: list[dict[str, Any]] = []
     for k in range(max(first, 1), min(stop, ours.shape[0], theirs.shape[0], inp.shape[0])):
         row: dict[str, Any] = {"frame": k}
+        input_keys = intersecting_pair_keys(inp[k], faces)
         for name, seq in (("idp", ours), ("authors", theirs)):
-            keys = intersecting_pair_keys(seq[k], faces)
-            row[name] = {"new_crossings": len(keys - first_frame_keys), **_deviation(seq[k], inp[k])}
+            new = intersecting_pair_keys(seq[k], faces) - first_frame_keys
+            prescribed = [key for key in new if among_group(key)]
+            row[name] = {
+                "new_crossings": len(new),
+                "new_crossings_prescribed_only": len(prescribed),
+                "new_crossings_prescribed_also_in_input": sum(key in input_keys for key in prescribed),
+                "new_crossings_outside_prescribed": len(new) - len(prescribed),
+                "prescribed_max_deviation": float(np.linalg.norm(seq[k][group] - inp[k][group], axis=1).max()),
+                **_deviation(seq[k], inp[k]),
+            }
         rows.append(row)
 
     def summary(name: str) -> dict[str, float | int]:
@@ -77,6 +101,12 @@ def main(argv: list[str] | None = None) -> int:
             "mean_deviation": float(np.mean([p["mean"] for p in per])),
             "max_new_crossings": max(p["new_crossings"] for p in per),
             "frames_with_new_crossings": sum(p["new_crossings"] > 0 for p in per),
+            "max_new_crossings_prescribed_only": max(p["new_crossings_prescribed_only"] for p in per),
+            "new_crossings_prescribed_not_in_input": sum(
+                p["new_crossings_prescribed_only"] - p["new_crossings_prescribed_also_in_input"] for p in per
+            ),
+            "max_new_crossings_outside_prescribed": max(p["new_crossings_outside_prescribed"] for p in per),
+            "prescribed_max_deviation": max(p["prescribed_max_deviation"] for p in per),
         }
 
     result: dict[str, Any] = {"ours": args.ours, "input": args.input, "authors": args.authors, "frames": rows}

@@ -202,6 +202,7 @@ def _cmd_repair(args) -> int:
         bending=args.bending,
         newton_tol=args.newton_tol,
         kappa_b=args.kappa_b,
+        prescribed_contact="guarded" if args.guard_fixed else "follow_input",
     )
     result = run_repair(scene, out, progress=not args.quiet, resume=args.resume, force_resume=args.force)
     return _finish(result, out)
@@ -277,8 +278,14 @@ def _print_summary(result, out: Path) -> None:
         lines.insert(
             0,
             f"repaired frames:    {rep.get('frames')} ({rep.get('unchanged_frames')} unchanged bit for bit); "
-            f"max deviation {rep.get('max_deviation', 0.0):.4g}, frames still crossing: "
-            f"{rep.get('frames_with_output_crossings')}",
+            f"max deviation {rep.get('max_deviation', 0.0):.4g}, frames with new crossings: "
+            f"{rep.get('frames_with_output_crossings_outside_prescribed', rep.get('frames_with_output_crossings'))}"
+            + (
+                f" (prescribed parts crossing as in the input: {rep['frames_with_output_crossings']} frames)"
+                if rep.get("frames_with_output_crossings", 0)
+                > rep.get("frames_with_output_crossings_outside_prescribed", rep.get("frames_with_output_crossings"))
+                else ""
+            ),
         )
     flow = s.get("flow")
     if flow:
@@ -500,6 +507,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="initial penalty pulling --fixed vertices onto the input when their move collides (default 1e4; "
         "1e8 when a fixed group passes through itself in the input, see docs/animation-repair.md)",
+    )
+    rp.add_argument(
+        "--guard-fixed",
+        action="store_true",
+        help="keep pairs among --fixed vertices in contact too: the fixed parts never cross, but lag the input "
+        "where it crosses itself (default: they follow the input exactly, as in the paper's code)",
     )
     rp.add_argument("--threads", type=_thread_count)
     rp.add_argument("--resume", action="store_true", help="continue an interrupted repair in the same folder")

@@ -90,12 +90,15 @@ def repair_scene(
     h: float = 0.04**2,
     newton_tol: float | None = None,
     kappa_b: float | None = None,
+    prescribed_contact: str = "follow_input",
     name: str | None = None,
 ) -> Scene:
     """A validated repair scene for ``sequence`` (see :class:`idp.scene.repair_schema.RepairConfig`); the
     defaults are the authors' mannequin set-up (d̂ = 1e-2, E = 100, thickness 0.01, bending 1, dt = 0.04).
     ``kappa_b``: the initial §4.3 penalty κ_B that pulls prescribed vertices onto the input when their straight
-    move collides (default the scene default, 1e4; docs/animation-repair.md measures when a large start pays)."""
+    move collides (default the scene default, 1e4; docs/animation-repair.md measures when a large start pays).
+    ``prescribed_contact``: ``follow_input`` (pairs among prescribed vertices left out of contact: they follow the
+    input exactly) or ``guarded`` (see :class:`idp.scene.repair_schema.RepairConfig`)."""
     doc: dict[str, Any] = {
         "name": name or Path(str(sequence)).stem.replace("*", "") or "repair",
         "dim": 3,
@@ -108,6 +111,7 @@ def repair_scene(
             "first_frame": first_frame,
             "output": output,
             "prescribed": list(prescribed or []),
+            "prescribed_contact": prescribed_contact,
         },
         "objects": [
             {

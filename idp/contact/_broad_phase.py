@@ -7,8 +7,9 @@ Rule. Each primitive (vertex, edge, face) has the axis-aligned box [lo, hi] of i
 V0, and also at V1 for a linear sweep). A pair is reported iff, on every axis,
 ``lo_a <= hi_b + inflation and lo_b <= hi_a + inflation``, evaluated literally (``hi + inflation``
 is rounded once and stored), so a brute force implementing the same expression gets the same set.
-Never reported: a face with one of its own vertices, two edges sharing a vertex, and pairs whose
-vertices are all static (id >= num_dynamic, or marked still for the query).
+Never reported: a face with one of its own vertices, two edges sharing a vertex, pairs whose
+vertices are all static (id >= num_dynamic, or marked still for the query), and pairs whose vertices
+are all in the query's ``group``.
 
 Algorithm: a dense uniform grid over the region the dynamic primitives reach, cell edge = 1.2 x
 the mean largest box side of the dynamic edges + inflation. Every primitive is binned (parallel,
@@ -68,8 +69,10 @@ _EMPTY = np.empty((0, 2), dtype=np.int32)
 @njit(cache=True, parallel=True)
 def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     """Per primitive g (vertices, then edges, then faces): lo, H = hi + infl, kind (0/1 dynamic/
-    static vertex, 2/3 edge, 4/5 face; a vertex is dynamic when its id < nd and ``still`` is 0 for it, an edge
-    or face when one of its vertices is), ri = (vertex ids, padded with -1; own id).
+    static vertex, 2/3 edge, 4/5 face; a vertex is dynamic when its id < nd and bit 0 of ``still`` (still) is 0
+    for it, an edge or face when one of its vertices is), grp[g] = 8 when bit 1 of ``still`` (in the group whose
+    pairs among themselves are skipped) is set for every vertex of g, else 0; ri = (vertex ids, padded with -1;
+    own id).
     ext[t] = this chunk's (min dynamic lo (3), max dynamic H (3), sum of the dynamic edges'
     largest box side, their count, the same for the dynamic faces, 1 if it saw a non-finite
     coordinate, 1 if it saw a vertex id outside [0, nv)); kcnt[t] = its count per kind."""
@@ -79,6 +82,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     lo = np.empty((n, 3))
     H = np.empty((n, 3))
     kind = np.empty(n, dtype=np.int8)
+    grp = np.empty(n, dtype=np.int32)
     ri = np.empty((n, 4), dtype=np.int32)
     ext = np.empty((nt, 12))
     kcnt = np.empty((nt, 6), dtype=np.int64)  # np.zeros here would be a parallel region of its own
@@ -104,7 +108,8 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
                 ri[g, 0] = g
                 ri[g, 1] = -1
                 ri[g, 2] = -1
-                d = g < nd and still[g] == 0
+                d = g < nd and (still[g] & 1) == 0
+                ing = (still[g] & 2) != 0
             elif g < nv + ne:
                 k = 2
                 i = g - nv
@@ -119,13 +124,17 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
                 ri[g, 2] = F[i, 2]
             if k > 1:
                 d = False
+                ing = True
                 for j in range(k):
                     v = ri[g, j]
                     if v < 0 or v >= nv:
                         bad_ids = 1.0
                         ri[g, j] = 0
+                        ing = False
                     else:
-                        d = d or (v < nd and still[v] == 0)
+                        d = d or (v < nd and (still[v] & 1) == 0)
+                        ing = ing and (still[v] & 2) != 0
+            grp[g] = 8 if ing else 0
             ri[g, 3] = i
             for a in range(3):
                 v = ri[g, 0]
@@ -178,7 +187,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
         ext[t, 9] = cnt_f
         ext[t, 10] = bad
         ext[t, 11] = bad_ids
-    return lo, H, kind, ri, ext, kcnt
+    return lo, H, kind, grp, ri, ext, kcnt
 
 
 @njit(cache=True)
@@ -326,7 +335,7 @@ def _chunks(start, k, spare):  # pragma: no cover
 
 @njit(cache=True, parallel=True)
 def _pairs(
-    chunks, dims, start, items, lo, H, kind, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv
+    chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv
 ):  # pragma: no cover
     """Test the candidate pairs of every cell. Chunk k writes its ee/fv rows into
     [ee_at[k], ee_at[k + 1]) / [fv_at[k], fv_at[k + 1]) while they fit and counts all it finds in
@@ -362,7 +371,10 @@ def _pairs(
                 for a in range(4):
                     vt[j, a] = ri[g, a]
                 msk[j] = (
-                    np.int32(cmin[g, 0] == cx) | (np.int32(cmin[g, 1] == cy) << 1) | (np.int32(cmin[g, 2] == cz) << 2)
+                    np.int32(cmin[g, 0] == cx)
+                    | (np.int32(cmin[g, 1] == cy) << 1)
+                    | (np.int32(cmin[g, 2] == cz) << 2)
+                    | grp[g]
                 )
             for j in range(6):
                 kc[j + 1] += kc[j]
@@ -388,7 +400,8 @@ def _pairs(
                         & (l1 <= box[j, 4])
                         & (box[j, 2] <= h2)
                         & (l2 <= box[j, 5])
-                        & ((mi | msk[j]) == 7)
+                        & (((mi | msk[j]) & 7) == 7)
+                        & ((mi & msk[j]) < 8)
                         & (a0 != b0)
                         & (a0 != b1)
                         & (a1 != b0)
@@ -415,7 +428,8 @@ def _pairs(
                         & (l1 <= box[j, 4])
                         & (box[j, 2] <= h2)
                         & (l2 <= box[j, 5])
-                        & ((mi | msk[j]) == 7)
+                        & (((mi | msk[j]) & 7) == 7)
+                        & ((mi & msk[j]) < 8)
                         & (a0 != b)
                         & (a1 != b)
                         & (a2 != b)
@@ -453,7 +467,7 @@ def _run(  # pragma: no cover
     nv = V0.shape[0]
     n = nv + E.shape[0] + F.shape[0]
     nt = max(1, min(threads, n // 2048 + 1))
-    lo, H, kind, ri, ext, kcnt = _boxes(V0, V1, sweep, E, F, nd, still, infl, nt)
+    lo, H, kind, grp, ri, ext, kcnt = _boxes(V0, V1, sweep, E, F, nd, still, infl, nt)
     org = np.empty(3)
     size = np.empty(3)
     if ext[:, 11].max() > 0:
@@ -495,7 +509,7 @@ def _run(  # pragma: no cover
     n_fv = np.empty(nk, dtype=np.int64)
     buf_ee = np.empty((at[-1], 2), dtype=np.int32)
     buf_fv = np.empty((at[-1], 2), dtype=np.int32)
-    _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big, at, at, buf_ee, buf_fv, n_ee, n_fv)
+    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, at, at, buf_ee, buf_fv, n_ee, n_fv)
     over = False
     for k in range(nk):
         over = over or n_ee[k] > at[k + 1] - at[k] or n_fv[k] > at[k + 1] - at[k]
@@ -509,7 +523,7 @@ def _run(  # pragma: no cover
         fv_at[k + 1] = fv_at[k] + n_fv[k]
     out_ee = np.empty((ee_at[nk], 2), dtype=np.int32)
     out_fv = np.empty((fv_at[nk], 2), dtype=np.int32)
-    _pairs(chunks, dims, start, items, lo, H, kind, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv)
+    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv)
     return out_fv, out_ee, 0
 
 
@@ -530,6 +544,7 @@ def surface_candidates(
     inflation: float,
     num_dynamic: int,
     still: np.ndarray | None = None,
+    group: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Broad-phase candidates of a 3D triangle surface.
 
@@ -541,7 +556,9 @@ def surface_candidates(
 
     ``still``: optional (nv,) bool, vertices that do not move in the query at hand (Dirichlet-held vertices of
     a Newton step): pairs made only of static or still vertices cannot change their distance, so the barrier
-    and CCD need not see them.
+    and CCD need not see them. ``group``: optional (nv,) bool, vertices whose pairs among themselves are left out
+    whether they move or not (a prescribed group, :meth:`idp.contact.model.ContactModel.leave_out_pairs_among`):
+    a pair is skipped when every vertex of both primitives is in it.
 
     Returns (fv, ee): fv (m, 2) int32 rows [face id, vertex id]; ee (k, 2) int32 rows
     [edge a, edge b] with a < b. Each pair appears once; the row order is deterministic but not
@@ -564,12 +581,13 @@ def surface_candidates(
     E = _as_index(edges, 2, "edges")
     F = _as_index(faces, 3, "faces")
     nd = max(0, min(int(num_dynamic), nv))
-    if still is None:
-        still_u8 = np.zeros(nv, dtype=np.uint8)
-    else:
-        still_u8 = np.ascontiguousarray(still, dtype=np.uint8)
-        if still_u8.shape != (nv,):
-            raise ValueError(f"still must be ({nv},) per vertex, got shape {still_u8.shape}")
+    still_u8 = np.zeros(nv, dtype=np.uint8)  # bit 0: still, bit 1: in the group
+    for bit, mask, name in ((1, still, "still"), (2, group, "group")):
+        if mask is not None:
+            m = np.asarray(mask)
+            if m.shape != (nv,):
+                raise ValueError(f"{name} must be ({nv},) per vertex, got shape {m.shape}")
+            still_u8[m.astype(bool)] |= bit
     if nd == 0:  # nothing is dynamic: no pair can be reported
         for a, name in ((E, "edges"), (F, "faces")):
             if a.size and (int(a.min()) < 0 or int(a.max()) >= nv):

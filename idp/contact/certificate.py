@@ -33,6 +33,7 @@ class Certificate:
     guards_intersection: bool = True  # False: contact off, intersections are reported, not failed
     guards_inversion: bool = True  # False: a non-barrier energy, inverted elements are reported, not failed
     degenerate_shell_triangles: int = 0  # shells have no inversion guarantee (paper §4.4): reported, not failed
+    prescribed_crossing_pairs: int = 0  # crossings among prescribed vertices only (they follow their input): reported
 
     @property
     def ok(self) -> bool:
@@ -48,6 +49,8 @@ class Certificate:
             )
         if not self.inversion_free:
             parts.append(f"{self.num_inverted} inverted element(s), min volume {self.min_element_volume:.3e}")
+        if self.prescribed_crossing_pairs:
+            parts.append(f"{self.prescribed_crossing_pairs} crossing pair(s) among prescribed vertices (as prescribed)")
         if self.degenerate_shell_triangles:
             parts.append(f"{self.degenerate_shell_triangles} degenerate shell triangle(s) (reported only)")
         return "; ".join(parts) or f"ok (min distance {self.min_distance:.3e})"
@@ -72,11 +75,15 @@ class Certifier:
         require_intersection_free: bool = True,
         preserved_pairs: set | None = None,
         shell_faces: np.ndarray | None = None,
+        prescribed_vertices: np.ndarray | None = None,
     ):
         """``require_intersection_free=False`` (a scene without the barrier, locally injective only): frames are
         checked and their intersecting (edge, triangle) pairs counted, but intersections do not fail them;
         ``require_inversion_free=False`` (non-barrier energies): inverted elements are counted, not failed;
-        ``shell_faces``: triangles of 3D shells, whose degenerate (near zero-area) triangles are counted."""
+        ``shell_faces``: triangles of 3D shells, whose degenerate (near zero-area) triangles are counted;
+        ``prescribed_vertices``: (n,) bool, a group whose pairs among themselves the solver leaves out (their motion
+        is prescribed, :meth:`idp.contact.model.ContactModel.leave_out_pairs_among`): a crossing pair whose every
+        vertex is in it is counted, not failed, and its pairs do not enter the minimum distance."""
         self.shell_faces = None if shell_faces is None or not len(shell_faces) else np.asarray(shell_faces, np.int64)
         self.dim = positions.shape[1]
         self.element_sets = element_sets
@@ -86,6 +93,9 @@ class Certifier:
         self.mesh = None
         self.surface = None if surface is None else np.asarray(surface, dtype=np.int64)
         self.preserved = set(preserved_pairs or ())
+        self.prescribed = None if prescribed_vertices is None else np.asarray(prescribed_vertices, dtype=bool)
+        if self.prescribed is not None and not self.prescribed.any():
+            self.prescribed = None
         self.num_excluded = len(self.preserved)
         if surface is not None and len(surface):
             surface = np.asarray(surface, dtype=np.int32)
@@ -113,7 +123,8 @@ class Certifier:
         from idp.contact._broad_phase import surface_candidates
 
         nv = vs.shape[0]
-        fv, ee = surface_candidates(vs, None, self._edges, self._faces, self.distance_query, nv)
+        group = None if self.prescribed is None else self.prescribed[self.to_full]
+        fv, ee = surface_candidates(vs, None, self._edges, self._faces, self.distance_query, nv, None, group)
         n = fv.shape[0] + ee.shape[0]
         if n == 0:
             return math.inf
@@ -142,7 +153,7 @@ class Certifier:
                 min_vol = min(min_vol, float(vols.min()))
                 n_inv += int(np.count_nonzero(vols <= 0))
         inversion_free = n_inv == 0
-        intersection_free, min_d, n_pairs = True, math.inf, 0
+        intersection_free, min_d, n_pairs, n_prescribed = True, math.inf, 0, 0
         if self.mesh is not None:
             assert self.surface is not None  # the collision mesh is only built from a surface
             vs = np.ascontiguousarray(x[self.to_full], dtype=float)
@@ -151,11 +162,13 @@ class Certifier:
 
                 n_pairs = len(intersecting_pair_keys(x, self.surface))
                 intersection_free = n_pairs == 0
-            elif self.preserved:
+            elif self.preserved or self.prescribed is not None:
                 from idp.contact.intersections import intersecting_pair_keys
 
-                now = intersecting_pair_keys(x, self.surface)
-                intersection_free = now <= self.preserved
+                if self.preserved or ipctk.has_intersections(self.mesh, vs, ipctk.LBVH()):
+                    new = intersecting_pair_keys(x, self.surface) - self.preserved
+                    n_prescribed = self.prescribed_only(new)
+                    intersection_free = n_prescribed == len(new)
             else:
                 intersection_free = not ipctk.has_intersections(self.mesh, vs, ipctk.LBVH())
             if intersection_free:
@@ -177,4 +190,13 @@ class Certifier:
             self.require_intersection_free,
             self.require_inversion_free,
             n_degenerate,
+            n_prescribed,
         )
+
+    def prescribed_only(self, keys: set) -> int:
+        """How many of the crossing-pair keys (vertex-id tuples of the two primitives) have every vertex in the
+        prescribed group."""
+        if self.prescribed is None or not keys:
+            return 0
+        group = self.prescribed
+        return sum(1 for a, b in keys if group[list(a)].all() and group[list(b)].all())

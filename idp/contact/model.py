@@ -79,13 +79,16 @@ class ContactModel:
         kappa: float | None = None,
         adaptive_kappa: bool = True,
         barrier: str = "compiled",
+        kappa_init: str = "every_step",
     ):
         """``surface``: boundary triangles (3D) or segments (2D) in global vertex ids; vertices with
         id >= ``num_dynamic_vertices`` are static obstacles (pairs of two static vertices are skipped).
         ``kappa``: None for IPC's automatic initial stiffness, or a fixed initial value.
         ``barrier``: ``compiled`` (collision set, barrier and Hessian blocks in arrays,
         :mod:`idp.contact.compiled_barrier`; 3D only, 2D falls back) or ``ipctk`` (ipctk's
-        ``NormalCollisions`` and ``BarrierPotential``); the same energy either way."""
+        ``NormalCollisions`` and ``BarrierPotential``); the same energy either way. ``kappa_init``: with the
+        automatic κ, IPC's gradient balance at the start of ``every_step`` (never lowering κ), or ``once``, at the
+        first step that has a pair within d̂ (:meth:`initialize_kappa`)."""
         if barrier not in BARRIERS:
             raise ValueError(f"unknown barrier implementation {barrier!r}; choose one of {BARRIERS}")
         self.dim = positions.shape[1]
@@ -110,6 +113,10 @@ class ContactModel:
         self._fallback_ccd = make_ccd("additive")
         self.ccd_fallbacks = 0
         self.kappa_auto = kappa is None
+        if kappa_init not in ("every_step", "once"):
+            raise ValueError(f"unknown kappa_init {kappa_init!r}; choose 'every_step' or 'once'")
+        self.kappa_init_once = kappa_init == "once"
+        self.kappa_initialized = False
         self.adaptive_kappa = adaptive_kappa
         self.kappa = 0.0 if kappa is None else float(kappa)
         self.kappa_max = 0.0 if kappa is None else 100.0 * float(kappa)
@@ -122,6 +129,7 @@ class ContactModel:
         self.num_dynamic_collision_vertices = n_dyn_cm
         self._move_bounds: tuple | None = None  # (sweep candidates, d(0), M) of the last filtered CCD
         self._still: np.ndarray | None = None  # collision-mesh vertices held still in the Newton step at hand
+        self._prescribed: np.ndarray | None = None  # collision-mesh vertices whose own pairs are left out for good
         if self.compiled:
             from idp.contact import compiled_barrier
             from idp.contact._broad_phase import surface_candidates
@@ -211,6 +219,25 @@ class ContactModel:
         mask = np.asarray(vertices, dtype=bool)[self.to_full]
         self._still = mask if mask.any() else None
 
+    def leave_out_pairs_among(self, vertices: np.ndarray | None) -> None:
+        """Full-mesh vertex mask (n,) of a prescribed group whose pairs among themselves leave the barrier and CCD
+        for the rest of the run (None: none), as the authors' code treats pairs of Dirichlet vertices: their
+        relative motion is prescribed, so the group follows its prescribed motion exactly, also where its own
+        parts pass through each other (an animation's head whose input crosses itself: Kick frame 10). Every pair
+        with a vertex outside the group stays guarded. Compiled barrier only (its broad phase skips them)."""
+        if vertices is None:
+            self._prescribed = None
+            return
+        if not self.compiled:
+            raise ValueError("leaving out the pairs among prescribed vertices needs the compiled 3D barrier")
+        mask = np.asarray(vertices, dtype=bool)[self.to_full]
+        self._prescribed = mask if mask.any() else None
+
+    @property
+    def prescribed_group(self) -> np.ndarray | None:
+        """Collision-mesh vertex mask set by :meth:`leave_out_pairs_among` (None: every pair is guarded)."""
+        return self._prescribed
+
     @property
     def still(self) -> np.ndarray | None:
         """Collision-mesh vertex mask set by :meth:`hold_still` (None: every vertex may move)."""
@@ -275,8 +302,8 @@ class ContactModel:
         self, v0: np.ndarray, v1: np.ndarray | None, *, every_pair: bool = False, still: np.ndarray | None = None
     ):
         """Broad-phase (fv, ee) candidates within d̂ (of the sweep v0 → v1 when v1 is given), without the pairs
-        of still vertices (``still``, default those of :meth:`hold_still`) unless ``every_pair``, and without
-        excluded touching pairs."""
+        of still vertices (``still``, default those of :meth:`hold_still`) and of the prescribed group
+        (:meth:`leave_out_pairs_among`) unless ``every_pair``, and without excluded touching pairs."""
         fv, ee = self._surface_candidates(
             v0,
             v1,
@@ -285,6 +312,7 @@ class ContactModel:
             self.dhat,
             self.num_dynamic_collision_vertices,
             None if every_pair else (self._still if still is None else still),
+            None if every_pair else self._prescribed,
         )
         if self._excluded_fv.size or self._excluded_ee.size:
             fv, ee = self._filter_excluded(fv, ee, v0.shape[0])
@@ -397,9 +425,15 @@ class ContactModel:
     ) -> float:
         """IPC initial stiffness (gradient balance, clamped to [κ_min, κ_max]); never lowers the current κ.
 
-        With a user-given κ this only fills in κ_max (100× the given value)."""
-        if not self.kappa_auto:
+        With a user-given κ this only fills in κ_max (100× the given value). With ``kappa_init = "once"`` only the
+        first call that sees a pair within d̂ balances (later ones return κ unchanged; the adaptive doubling goes
+        on): in an animation repair each step is a new frame whose prescribed head may start far from its targets,
+        and balancing there raised κ 25× over 18 frames of Kick, pushing every pair within d̂ apart (the deviation
+        from the input 0.015 → 0.032)."""
+        if not self.kappa_auto or (self.kappa_init_once and self.kappa_initialized):
             return self.kappa
+        if ev.num_active:
+            self.kappa_initialized = True
         grad_b = self.gradient(ev, kappa=1.0)
         kappa, kappa_max = ipctk.initial_barrier_stiffness(
             self.bbox_diagonal, self.potential(1.0).barrier, self.dhat, average_mass, energy_gradient_collision, grad_b

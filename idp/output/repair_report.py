@@ -90,6 +90,7 @@ def _row(rec: dict) -> dict[str, Any]:
         "input_crossing_pairs_not_preserved": int(r.get("input_crossing_pairs_not_preserved", 0)),
         "output_crossing_pairs": int(r.get("output_crossing_pairs", 0)),
         "output_crossing_pairs_not_preserved": int(r.get("output_crossing_pairs_not_preserved", 0)),
+        "output_crossing_pairs_prescribed": int(r.get("output_crossing_pairs_prescribed", 0)),
         "newton_iterations": int(rec.get("newton_iterations", 0) or 0),
         "wall_time": float(rec.get("wall_time", 0.0) or 0.0),
         "certified": bool(cert.get("ok", False)) if isinstance(cert, dict) else None,
@@ -114,6 +115,9 @@ def _sequence(rows: list[dict], summary: dict) -> dict[str, Any]:
         "changed_frames": sum(not r["unchanged"] for r in rows),
         "frames_with_input_crossings": sum(r["input_crossing_pairs_not_preserved"] > 0 for r in rows),
         "frames_with_output_crossings": sum(r["output_crossing_pairs_not_preserved"] > 0 for r in rows),
+        "frames_with_output_crossings_outside_prescribed": sum(
+            r["output_crossing_pairs_not_preserved"] > r["output_crossing_pairs_prescribed"] for r in rows
+        ),
         "max_deviation": worst["max_deviation"] if worst else 0.0,
         "max_deviation_frame": worst["frame"] if worst and worst["max_deviation"] > 0 else None,
         "max_deviation_relative": worst["max_deviation_relative"] if worst else None,
@@ -154,6 +158,10 @@ def _markdown(report: dict, title: str, pictures: list[str]) -> str:
         ("frames with new input crossings", str(s["frames_with_input_crossings"])),
         ("frames with new output crossings", str(s["frames_with_output_crossings"])),
         (
+            "of them, outside the prescribed vertices",
+            str(s["frames_with_output_crossings_outside_prescribed"]),
+        ),
+        (
             "max deviation",
             f"{_g(s['max_deviation'])}"
             + (f" ({100 * rel:.3g}% of the bbox diagonal)" if rel is not None else "")
@@ -171,7 +179,8 @@ def _markdown(report: dict, title: str, pictures: list[str]) -> str:
     lines += [
         "",
         "Crossings: intersecting triangle pairs of the frame (in parentheses: those not among the first frame's "
-        "preserved pairs). Deviations |output − input| per vertex, in scene units.",
+        "preserved pairs; a `p` count: of those, pairs among prescribed vertices only, which follow the input's own "
+        "crossings). Deviations |output − input| per vertex, in scene units.",
         "",
         "| frame | unchanged | input crossings (new) | output crossings (new) | max dev | mean dev | its | s |",
         "|---:|:---:|---:|---:|---:|---:|---:|---:|",
@@ -181,7 +190,9 @@ def _markdown(report: dict, title: str, pictures: list[str]) -> str:
         lines.append(
             f"| {frame} | {'yes' if r['unchanged'] else ''} "
             f"| {r['input_crossing_pairs']} ({r['input_crossing_pairs_not_preserved']}) "
-            f"| {r['output_crossing_pairs']} ({r['output_crossing_pairs_not_preserved']}) "
+            f"| {r['output_crossing_pairs']} ({r['output_crossing_pairs_not_preserved']}"
+            + (f", {r['output_crossing_pairs_prescribed']} p" if r["output_crossing_pairs_prescribed"] else "")
+            + ") "
             f"| {_g(r['max_deviation'])} | {_g(r['mean_deviation'])} "
             f"| {r['newton_iterations']} | {r['wall_time']:.3g} |"
         )

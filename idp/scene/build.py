@@ -413,6 +413,7 @@ def build_scene(
             kappa=None if c.kappa == "auto" else float(c.kappa),
             adaptive_kappa=c.adaptive_kappa,
             barrier=c.barrier,
+            kappa_init=c.kappa_init,
         )
         if c.preserve_input_intersections:
             touching = contact.exclude_touching(x, TOUCHING_FRACTION * diag)
@@ -450,10 +451,20 @@ def build_scene(
     }
     handles = _build_handles(scene, deformables, kinematic, object_ids, x, pinned, np.sqrt(scene.time.h))
     repair = _repair_frames(scene, shells, shell_terms, preserved) if scene.repair is not None else None
+    prescribed_group = None  # vertices whose pairs among themselves are left out of contact (they follow the input)
     if repair is not None:
         with_handles = with_handles or repair.prescribed.size > 0
         meta["repair_frames"] = [repair.frames[0], repair.frames[-1]]
         meta["prescribed_vertices"] = int(repair.prescribed.size)
+        assert scene.repair is not None
+        if contact is not None and repair.prescribed.size and scene.repair.prescribed_contact == "follow_input":
+            prescribed_group = np.zeros(N, dtype=bool)
+            prescribed_group[repair.vertex_ids[repair.prescribed]] = True
+            try:
+                contact.leave_out_pairs_among(prescribed_group)
+            except ValueError as exc:
+                raise SceneError(f"repair.prescribed_contact = 'follow_input': {exc}; set it to 'guarded'") from None
+        meta["prescribed_contact"] = scene.repair.prescribed_contact
     linear_terms: list = []
     if scene.gravity is not None and any(scene.gravity):
         linear_terms.append(GravityPotential(masses, np.asarray(scene.gravity, dtype=float)))
@@ -526,6 +537,7 @@ def build_scene(
         require_intersection_free=c.enabled,
         preserved_pairs=preserved,
         shell_faces=np.vstack([f for _, _, f in shells]) if shells else None,
+        prescribed_vertices=prescribed_group,
     )
     meta["guards_inversion"] = guards_inversion
     meta["guards_intersection"] = bool(c.enabled)

@@ -28,7 +28,11 @@ class RepairConfig(_Model):
     named) or its crossings are ``preserve``d as features through the whole sequence (paper §5.5; the authors'
     mannequin has ~500 such pairs, its nails and ears, in every frame): every other pair stays guarded and
     every output frame is certified against them. ``output``: the repaired sequence's form, ``same`` as the
-    input (default) or ``obj`` / ``pvd`` / ``npz`` / ``usd``.
+    input (default) or ``obj`` / ``pvd`` / ``npz`` / ``usd``. ``prescribed_contact``: pairs among prescribed vertices
+    only are left out of the barrier and CCD (``follow_input``, default, as the authors' code does with its
+    Dirichlet vertices: the prescribed parts follow the input exactly, also where the input's own prescribed parts
+    pass through each other — such crossings are reported per frame, never any other), or ``guarded`` like every
+    other pair (the prescribed parts never cross, and lag the input where it crosses itself).
 
     The scene's single shell object is the sequence itself: leave ``objects`` out (one is made, with the
     authors' material E = 100, ν = 0.4, thickness 0.01, bending 1, density 1000), or give exactly one shell
@@ -41,6 +45,7 @@ class RepairConfig(_Model):
     prescribed: list[RepairSelector] = Field(default_factory=list)
     first_frame: Literal["error", "preserve"] = "error"
     output: Literal["same", "obj", "pvd", "npz", "usd"] = "same"
+    prescribed_contact: Literal["follow_input", "guarded"] = "follow_input"
 
     @model_validator(mode="after")
     def _range(self) -> RepairConfig:

@@ -140,6 +140,9 @@ class ContactConfig(_Model):
     dhat_mode: Literal["absolute", "relative"] = "absolute"
     kappa: Literal["auto"] | float = "auto"
     adaptive_kappa: Bool = True
+    # IPC's gradient-balance start of κ (kappa = "auto"): at every step, never lowering κ (default), or only at
+    # the first step solved (the authors' codes set κ once per run; a repair's default, see docs/animation-repair.md)
+    kappa_init: Literal["every_step", "once"] = "every_step"
     ccd: Literal["additive", "tight_inclusion"] = "tight_inclusion"
     broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
     barrier: Literal["compiled", "ipctk"] = "compiled"
@@ -884,6 +887,8 @@ class Scene(_Model):
             self.contact.dhat = REPAIR_DHAT
         if "newton_tol" not in self.solver.model_fields_set:
             self.solver.newton_tol = REPAIR_NEWTON_TOL
+        if "kappa_init" not in self.contact.model_fields_set:
+            self.contact.kappa_init = "once"
         if "newton_norm" not in self.solver.model_fields_set:
             self.solver.newton_norm = "rms"
         if r.first_frame == "preserve":

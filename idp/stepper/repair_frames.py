@@ -92,17 +92,26 @@ class RepairFrames:
     def unchanged(self, x: np.ndarray) -> bool:
         return self.input is not None and bool(np.array_equal(self.output(x), self.input))
 
-    def _crossings(self, v: np.ndarray) -> tuple[int, int]:
-        """(crossing pairs, those not among the preserved first-frame pairs) of a frame in global ids."""
+    def _crossings(self, v: np.ndarray) -> tuple[int, int, int]:
+        """(crossing pairs, those not among the preserved first-frame pairs, those of them whose every vertex is
+        prescribed) of a frame in global ids."""
         X = np.zeros((int(self.vertex_ids.max()) + 1, 3))
         X[self.vertex_ids] = v
         keys = intersecting_pair_keys(X, self.faces)
-        return len(keys), len(keys - self.preserved)
+        new = keys - self.preserved
+        prescribed = 0
+        if self.prescribed.size and new:
+            group = np.zeros(X.shape[0], dtype=bool)
+            group[self.vertex_ids[self.prescribed]] = True
+            prescribed = sum(1 for a, b in new if group[list(a)].all() and group[list(b)].all())
+        return len(keys), len(new), prescribed
 
     def report(self, system: Any, x: np.ndarray) -> dict:
         """Deviation from the input frame (per vertex: max, mean; max per coordinate as the manifest measures the
         authors' output), relative to the first frame's bounding-box diagonal, and crossing pairs of input and
-        output."""
+        output; of the crossings not preserved, those whose every vertex is prescribed (the input's own crossings
+        of the prescribed parts, which they follow when their pairs are left out of contact).
+        """
         if self.input is None:  # the start state (of a run, or of a resumed run)
             self.input = self._read(self.step)
         step_frame = self.input
@@ -110,8 +119,10 @@ class RepairFrames:
         d = out - step_frame
         dist = np.linalg.norm(d, axis=1)
         diag = system.meta.get("bbox_diagonal")
-        in_pairs, in_new = self._crossings(step_frame)
-        out_pairs, out_new = (in_pairs, in_new) if not np.any(d) else self._crossings(out)
+        in_pairs, in_new, in_prescribed = self._crossings(step_frame)
+        out_pairs, out_new, out_prescribed = (
+            (in_pairs, in_new, in_prescribed) if not np.any(d) else self._crossings(out)
+        )
         return {
             "frame": self.frames[self.step],
             "unchanged": bool(np.array_equal(out, step_frame)),
@@ -124,4 +135,6 @@ class RepairFrames:
             "input_crossing_pairs_not_preserved": in_new,
             "output_crossing_pairs": out_pairs,
             "output_crossing_pairs_not_preserved": out_new,
+            "input_crossing_pairs_prescribed": in_prescribed,
+            "output_crossing_pairs_prescribed": out_prescribed,
         }

@@ -75,6 +75,7 @@ def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
         step=step,
         kappa=system.contact.kappa if system.contact else 0.0,
         kappa_max=system.contact.kappa_max if system.contact else 0.0,
+        kappa_initialized=bool(system.contact.kappa_initialized) if system.contact else False,
         **extra,
     )
     kill_point("checkpoint")
@@ -223,6 +224,8 @@ def run_simulation(
         start_step = int(ck["step"])
         if system.contact is not None:
             system.contact.kappa, system.contact.kappa_max = float(ck["kappa"]), float(ck["kappa_max"])
+            done = ck.get("kappa_initialized")  # absent in checkpoints written before it was kept
+            system.contact.kappa_initialized = bool(done) if done is not None else system.contact.kappa > 0.0
         _load_condition_states(ck, system, checkpoint)
         previous, resumes = _previous_stats(stats_path, start_step)
         log.info("resuming %s after step %d", out, start_step)

@@ -118,7 +118,12 @@ def test_pairs_among_held_vertices_leave_the_step_without_changing_it(tmp_path, 
     V, F, _gaps = two_spheres(num_frames=5, subdivisions=3, depth=0.0)
     n = V.shape[1] // 2
     inp = _save_npz(tmp_path / "spheres.npz", V, F)
-    kw = {"dhat": 0.05, "prescribed": [{"indices": list(range(n))}], "newton_tol": 1e-6}
+    kw = {
+        "dhat": 0.05,
+        "prescribed": [{"indices": list(range(n))}],
+        "newton_tol": 1e-6,
+        "prescribed_contact": "guarded",  # else the prescribed group's own pairs are out in both runs
+    }
     masked = run_repair(repair_scene(inp, **kw), tmp_path / "masked", progress=False)
     hold_still = ContactModel.hold_still
     monkeypatch.setattr(ContactModel, "hold_still", lambda self, vertices: hold_still(self, None))
@@ -274,14 +279,17 @@ def test_any_scene_object_can_start_from_a_sequence_frame(tmp_path):
         assert np.array_equal(built.system.x, V[3])  # frame 3: apart again (frames 1, 2 cross)
 
 
-def test_a_prescribed_group_blocked_by_its_own_crossing_stays_intersection_free_in_every_iterate(tmp_path):
+def test_a_guarded_prescribed_group_blocked_by_its_own_crossing_stays_intersection_free_in_every_iterate(tmp_path):
     """Both spheres prescribed and driven through each other (the mannequin's head passing through itself in the
-    input): the straight move onto the input collides, the §4.3 penalty pulls with the prescribed DOFs free, and
-    the targets are met once every vertex is within the tolerance. Every accepted Newton iterate is certified, the
-    output never crosses, and the vertices away from the contact follow the input."""
+    input), with their pairs guarded (``prescribed_contact = "guarded"``): the straight move onto the input
+    collides, the §4.3 penalty pulls with the prescribed DOFs free, and the targets are met once every vertex is
+    within the tolerance. Every accepted Newton iterate is certified, the output never crosses, and the vertices
+    away from the contact follow the input."""
     V, F, gaps = two_spheres(num_frames=5, subdivisions=2, depth=0.05)
     inp = _save_npz(tmp_path / "spheres.npz", V, F)
-    scene = repair_scene(inp, dhat=0.02, prescribed=[{"indices": list(range(V.shape[1]))}])
+    scene = repair_scene(
+        inp, dhat=0.02, prescribed=[{"indices": list(range(V.shape[1]))}], prescribed_contact="guarded"
+    )
     scene.solver.check_every_iterate = True  # a crossing in any accepted iterate fails the run
     result = run_repair(scene, tmp_path / "out", progress=False)
     assert result.summary["all_certified"]
@@ -321,3 +329,62 @@ def test_held_dofs_leave_the_factorisation_without_changing_the_repair(tmp_path,
         np.testing.assert_allclose(a.frame(k), b.frame(k), rtol=0, atol=1e-9)
     assert sum(r.get("newton_iterations", 0) for r in reduced.step_records) > 0
     assert reduced.summary["all_certified"] and whole.summary["all_certified"]
+
+
+def test_a_prescribed_group_follows_its_own_crossing_in_the_input_and_nothing_else_crosses(tmp_path):
+    """Both spheres prescribed and driven through each other, with the default ``prescribed_contact =
+    "follow_input"`` (the authors' treatment of Dirichlet vertices): pairs among prescribed vertices are out of
+    contact, so every frame is the input itself, bit for bit, crossings included; the certificate counts those
+    crossings as prescribed and still passes, and the report gives them per frame. A third, free sphere placed where
+    the left one passes keeps being pushed away: pairs with a free vertex stay guarded."""
+    V, F, gaps = two_spheres(num_frames=5, subdivisions=2, depth=0.05)
+    n2 = V.shape[1]
+    s = ellipsoid_surface((0.12, 0.12, 0.12), subdivisions=2)
+    free = np.array([f[: n2 // 2].mean(axis=0) + np.array([0.0, 0.0, 0.45]) for f in V])  # above the left sphere
+    free[2:] = free[1]  # it stays where the left sphere comes to it in frame 2 (z: 0.45 − 0.3 − 0.12 = 0.03 gap)
+    free[:, 2] -= np.array([0.0, 0.0, 0.06, 0.06, 0.06])  # and then overlaps it in the input: −0.03
+    W = np.concatenate([V, s.vertices[None] + free[:, None, :]], axis=1)
+    G = np.vstack([F, s.faces + n2])
+    inp = _save_npz(tmp_path / "spheres.npz", W, G)
+    result = run_repair(
+        repair_scene(inp, dhat=0.02, prescribed=[{"indices": list(range(n2))}]), tmp_path / "out", progress=False
+    )
+    assert result.summary["all_certified"]
+    out = open_sequence(tmp_path / "out" / "spheres.npz")
+    k = int(np.argmin(gaps))
+    assert gaps[k] < 0
+    for j in range(W.shape[0]):
+        assert np.array_equal(out.frame(j)[:n2], W[j][:n2])  # the prescribed spheres are the input, bit for bit
+    group = np.zeros(W.shape[1], dtype=bool)
+    group[:n2] = True
+    crossing = intersecting_pair_keys(out.frame(k), G)
+    assert crossing  # the prescribed spheres cross each other as in the input ...
+
+    def across(keys):  # crossing pairs with a vertex outside the prescribed group
+        return [key for key in keys if not (group[list(key[0])].all() and group[list(key[1])].all())]
+
+    assert any(across(intersecting_pair_keys(W[j], G)) for j in range(W.shape[0]))  # the input's free sphere overlaps
+    for j in range(W.shape[0]):
+        assert not across(intersecting_pair_keys(out.frame(j), G))  # the output's never does
+    rec = next(r for r in result.step_records if r["repair"]["frame"] == k)
+    assert rec["repair"]["output_crossing_pairs_prescribed"] == rec["repair"]["output_crossing_pairs_not_preserved"]
+    assert rec["certificate"]["prescribed_crossing_pairs"] == len(crossing)
+    assert np.abs(out.frame(k)[n2:] - W[k][n2:]).max() > 0.02  # the free sphere gave way
+
+
+def test_repair_scenes_balance_kappa_once_and_let_prescribed_parts_follow_the_input(tmp_path):
+    """A repair's defaults: κ balanced once per run (a frame whose prescribed head starts far from its targets does
+    not raise it), pairs among prescribed vertices out of contact; both can be set back."""
+    from idp.scene.load import scene_from_dict
+
+    V, F, _ = two_spheres(num_frames=3)
+    inp = _save_npz(tmp_path / "spheres.npz", V, F)
+    scene = repair_scene(inp, prescribed=[{"indices": [0, 1, 2]}])
+    assert scene.contact.kappa_init == "once" and scene.repair.prescribed_contact == "follow_input"
+    doc = {"repair": {"input": str(inp), "prescribed_contact": "guarded"}, "contact": {"kappa_init": "every_step"}}
+    scene = scene_from_dict(doc)
+    assert scene.contact.kappa_init == "every_step" and scene.repair.prescribed_contact == "guarded"
+    plain = scene_from_dict({"objects": [{"name": "s", "kind": "shell", "mesh": str(inp), "frame": 0}]})
+    assert plain.contact.kappa_init == "every_step"
+    with pytest.raises(SceneError, match="prescribed_contact"):
+        scene_from_dict({"repair": {"input": str(inp), "prescribed_contact": "loose"}})

@@ -307,3 +307,24 @@ def test_still_vertices_leave_only_their_own_pairs_out(name, sweep):
     assert len(want_fv) < len(fv_all) and len(want_fv) > 0  # the mask matters in every scene
     with pytest.raises(ValueError, match="still"):
         surface_candidates(V, V1, E, F, 2e-2, nd, still[:-1])
+
+
+@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+@pytest.mark.parametrize("name", list(SCENES))
+def test_a_group_leaves_only_the_pairs_among_its_own_vertices_out(name, sweep):
+    """``group`` marks a prescribed set whose pairs among themselves are skipped whether they move or not: exactly
+    the pairs whose every vertex is in it are left out, alone and together with ``still``."""
+    V, E, F, nd = SCENES[name]()
+    rng = np.random.default_rng(12)
+    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    group = V[:, 0] < np.median(V[:, 0])  # a spatial half: many pairs among it, many across
+    still = rng.random(len(V)) < 0.3
+    for still_mask in (None, still):
+        fv_all, ee_all = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask))
+        fv, ee = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask, group))
+        want_fv = {(f, v) for f, v in fv_all if not (group[v] and group[F[f]].all())}
+        want_ee = {(a, b) for a, b in ee_all if not (group[E[a]].all() and group[E[b]].all())}
+        assert fv == want_fv and ee == want_ee
+        assert len(want_fv) < len(fv_all) and len(want_fv) > 0  # the group matters in every scene
+    with pytest.raises(ValueError, match="group"):
+        surface_candidates(V, V1, E, F, 2e-2, nd, None, group[:-1])

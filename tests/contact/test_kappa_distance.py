@@ -32,3 +32,23 @@ def test_kappa_distance_skips_exempt_vertices(barrier):
     else:  # the ipctk barrier keeps the global distance (documented)
         assert cm.kappa_distance(ev) == cm.min_distance(ev)
     assert cm.min_distance(ev) == pytest.approx(1e-9, rel=1e-3)  # CCD's near-contact switch still sees it
+
+
+@pytest.mark.parametrize("mode", ["every_step", "once"])
+def test_kappa_init_once_balances_only_the_first_step_with_contact(mode):
+    """``kappa_init = "once"``: IPC's gradient balance sets κ at the first call that sees a pair within d̂ and
+    never again, however strongly a later step's energy pushes into the contact; ``every_step`` raises κ then."""
+    x, faces = _two_stacks(0.5 * DHAT, 0.5 * DHAT)
+    cm = ContactModel(x, faces, x.shape[0], DHAT, kappa_init=mode)
+    far, _ = _two_stacks(2.0 * DHAT, 2.0 * DHAT)
+    cm.initialize_kappa(cm.evaluate(far), np.zeros(far.size), 1.0)  # no pair within d̂: not yet "initialised"
+    assert not cm.kappa_initialized
+    ev = cm.evaluate(x)
+    push = np.zeros(x.size)
+    push[3 * 3 + 2 :: 3][:3] = 1e-3  # the upper triangle of the first stack pressed down (energy gradient +z)
+    k1 = cm.initialize_kappa(ev, push, 1.0)
+    assert cm.kappa_initialized and k1 > 0.0
+    k2 = cm.initialize_kappa(ev, 1e4 * push, 1.0)
+    assert (k2 == k1) if mode == "once" else (k2 > k1)
+    with pytest.raises(ValueError, match="kappa_init"):
+        ContactModel(x, faces, x.shape[0], DHAT, kappa_init="sometimes")
