@@ -141,7 +141,8 @@ class ContactConfig(_Model):
     kappa: Literal["auto"] | float = "auto"
     adaptive_kappa: Bool = True
     # IPC's gradient-balance start of κ (kappa = "auto"): at every step, never lowering κ (default), or only at
-    # the first step solved (the authors' codes set κ once per run; a repair's default, see docs/animation-repair.md)
+    # the first step with a pair within d̂ (a repair's default: a frame whose prescribed head starts off its targets
+    # must not raise κ for every later frame; docs/animation-repair.md)
     kappa_init: Literal["every_step", "once"] = "every_step"
     ccd: Literal["additive", "tight_inclusion"] = "tight_inclusion"
     broad_phase: Literal["lbvh", "hash_grid", "spatial_hash", "sweep_and_prune", "brute_force"] = "lbvh"
