@@ -217,6 +217,7 @@ def _plot_deviation(path: Path, rows: list[dict], title: str) -> None:
     unchanged = np.array([r["unchanged"] for r in rows], dtype=bool)
     new_in = np.array([r["input_crossing_pairs_not_preserved"] for r in rows])
     new_out = np.array([r["output_crossing_pairs_not_preserved"] for r in rows])
+    new_out_prescribed = np.array([r["output_crossing_pairs_prescribed"] for r in rows])
     fig = Figure(figsize=(9.0, 6.0), dpi=100, facecolor="white")
     FigureCanvasAgg(fig)
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
@@ -239,7 +240,22 @@ def _plot_deviation(path: Path, rows: list[dict], title: str) -> None:
     ax1.grid(alpha=0.3)
     width = 0.4 if len(frames) < 2 else 0.4 * float(np.min(np.diff(np.unique(frames))))
     ax2.bar(frames - width / 2, new_in, width=width, color="#DD8452", label="input crossing pairs not preserved")
-    ax2.bar(frames + width / 2, new_out, width=width, color="#C44E52", label="output crossing pairs not preserved")
+    ax2.bar(
+        frames + width / 2,
+        new_out - new_out_prescribed,
+        width=width,
+        color="#C44E52",
+        label="output crossing pairs not preserved",
+    )
+    if new_out_prescribed.any():  # the prescribed parts' own crossings, as in the input (prescribed_contact)
+        ax2.bar(
+            frames + width / 2,
+            new_out_prescribed,
+            bottom=new_out - new_out_prescribed,
+            width=width,
+            color="#8172B3",
+            label="… among prescribed vertices only (as in the input)",
+        )
     if unchanged.any():
         ax2.plot(frames[unchanged], np.zeros(int(unchanged.sum())), "o", mfc="none", mec="#B0B0B0", ms=4.5)
     ax2.set_ylim(bottom=0.0, top=max(float(max(new_in.max(initial=0), new_out.max(initial=0))) * 1.1, 1.0))
