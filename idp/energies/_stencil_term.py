@@ -102,18 +102,48 @@ class StencilTerm:
         return self._run(x, False, True, project)[2]
 
     def value_gradient_hessian_groups(
-        self, x: np.ndarray, sink: HessianSink, project: bool = True, group: int = 4096
+        self,
+        x: np.ndarray,
+        sink: HessianSink,
+        project: bool = True,
+        group: int = 4096,
+        skip: np.ndarray | None = None,
     ) -> tuple[float, np.ndarray]:
         """(energy, flat gradient); stencil Hessians handed to ``sink(first, blocks)`` group by group (the
-        buffer is reused, so the sink must consume the blocks before returning)."""
+        buffer is reused, so the sink must consume the blocks before returning). ``skip``: (m,) bool, stencils
+        left out (no energy, gradient or Hessian: the caller knows they act on held DOFs only); the others are
+        computed in runs of consecutive stencils."""
         m, k = self.num_stencils, self.stencil_size
         xc = positions(x, self.num_vertices)
         e = np.zeros(m)
         g = np.zeros((m, k))
         buf = np.zeros((min(group, max(m, 1)), k, k))
-        for a in range(0, m, group):
-            b = min(m, a + group)
-            h = buf[: b - a]
-            self._kernel(xc, a, b, True, True, bool(project), e[a:b], g[a:b], h)
-            sink(a, h)
+        for first, last in _runs(m, skip):
+            for a in range(first, last, group):
+                b = min(last, a + group)
+                h = buf[: b - a]
+                self._kernel(xc, a, b, True, True, bool(project), e[a:b], g[a:b], h)
+                sink(a, h)
         return float(e.sum()), scatter_gradient(self._dofs, g, 3 * self.num_vertices)
+
+
+#: Skipped stencils between two runs of kept ones are evaluated anyway (and their blocks scattered) when there are
+#: fewer than this many: each kernel call costs a parallel launch, and the mannequin's held head leaves its hinges
+#: in ~50 runs interleaved with short gaps (measured: a call per run was no faster than evaluating everything).
+MIN_SKIPPED_RUN = 256
+
+
+def _runs(m: int, skip: np.ndarray | None, min_gap: int = MIN_SKIPPED_RUN) -> list[tuple[int, int]]:
+    """[first, last) ranges of the stencils to evaluate: those not skipped, joined across gaps shorter than
+    ``min_gap`` skipped stencils."""
+    if skip is None:
+        return [(0, m)] if m else []
+    keep = np.concatenate(([0], (~np.asarray(skip, dtype=bool)).astype(np.int8), [0]))
+    edges = np.flatnonzero(np.diff(keep))
+    runs: list[tuple[int, int]] = []
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        if runs and a - runs[-1][1] < min_gap:
+            runs[-1] = (runs[-1][0], b)
+        else:
+            runs.append((a, b))
+    return runs

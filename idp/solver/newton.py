@@ -21,6 +21,7 @@ analysis before the first factorisation, and a step that would not fit stops wit
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from collections.abc import Callable
@@ -148,6 +149,7 @@ class StepSolver:
         self.iterate_checks = 0
         self._constraint = None
         self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
+        self._skip_stencils: dict[int, np.ndarray] = {}  # per term index: stencils on held or fixed DOFs only
         self._may_extend = False  # whether this iteration's full step may be extended (see _extrapolate)
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
         for wt in system.terms:
@@ -211,7 +213,11 @@ class StepSolver:
                 def sink(first, blocks, i=i, w=s.h * wt.weight):
                     asm.add_element_blocks(data, i, first, blocks, w)
 
-                _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
+                skip = self._skip_stencils.get(i)
+                if skip is None:
+                    _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True)
+                else:  # stencils on held DOFs only: their gradient is zeroed and their rows dropped anyway
+                    _, ge = wt.term.value_gradient_hessian_groups(x, sink, project=True, skip=skip)
             g += s.h * wt.weight * ge
         data = asm.finish_data(data)
         active = ev is not None and ev.num_active > 0
@@ -518,6 +524,7 @@ class StepSolver:
         x = (x_prev if start is None else start).copy()
         self._constraint = s.step_constraint
         self._held = None
+        self._skip_stencils = {}
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
         try:
@@ -665,12 +672,33 @@ class StepSolver:
                 return False
         return not np.any(P) or self.feasible_step(x, P, res) >= 1.0
 
+    def _stencils_on_held(self, held_all: np.ndarray) -> dict[int, np.ndarray]:
+        """Per term index (terms with stencil DOFs and a skip option: shells): the stencils whose every DOF is
+        held or not optimised. Their gradient lands only on DOFs the step zeroes and their Hessian only on rows it
+        drops, so the Newton loop skips them (the mannequin's held head: half the triangles and hinges)."""
+        s = self.system
+        if not held_all.any():
+            return {}
+        inactive = held_all | ~s.dof_map.free_mask
+        out = {}
+        for i, wt in enumerate(s.terms):
+            term = wt.term
+            if hasattr(term, "gradient_hessian_into") or not hasattr(term, "element_dofs"):
+                continue
+            if "skip" not in inspect.signature(term.value_gradient_hessian_groups).parameters:
+                continue
+            skip = inactive[term.element_dofs()].all(axis=1)
+            if skip.any():
+                out[i] = skip
+        return out
+
     def _update_held(self, c, free: np.ndarray) -> bool:
         """Takes the constraint's held DOFs; tells the contact model which vertices stay still (every DOF held),
         so pairs among them leave its collision sets and CCD. Returns whether that vertex set changed."""
         held_all = c.held_dofs()
         held = held_all[free]
         self._held = held if held.any() else None
+        self._skip_stencils = self._stencils_on_held(held_all)
         contact = self.system.contact
         if contact is None:
             return False

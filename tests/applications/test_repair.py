@@ -388,3 +388,32 @@ def test_repair_scenes_balance_kappa_once_and_let_prescribed_parts_follow_the_in
     assert plain.contact.kappa_init == "every_step"
     with pytest.raises(SceneError, match="prescribed_contact"):
         scene_from_dict({"repair": {"input": str(inp), "prescribed_contact": "loose"}})
+
+
+def test_shell_stencils_on_held_dofs_are_skipped_without_changing_the_repair(tmp_path, monkeypatch):
+    """Once the prescribed sphere is held, the membrane and bending stencils whose every DOF is held are not
+    evaluated (their gradient and Hessian act on dropped DOFs only); the frames equal those of a run that evaluates
+    every stencil."""
+    from idp.solver.newton import StepSolver
+
+    V, F, _gaps = two_spheres(num_frames=5, subdivisions=3, depth=0.0)
+    n = V.shape[1] // 2
+    inp = _save_npz(tmp_path / "spheres.npz", V, F)
+    kw = {"dhat": 0.05, "prescribed": [{"indices": list(range(n))}], "newton_tol": 1e-6}
+    skipped: list[int] = []
+    find = StepSolver._stencils_on_held
+    monkeypatch.setattr(
+        StepSolver,
+        "_stencils_on_held",
+        lambda self, held: (lambda out: (skipped.append(sum(int(v.sum()) for v in out.values())), out)[1])(
+            find(self, held)
+        ),
+    )
+    lean = run_repair(repair_scene(inp, **kw), tmp_path / "lean", progress=False)
+    assert skipped and max(skipped) > 0  # the held sphere's triangles and hinges were skipped
+    monkeypatch.setattr(StepSolver, "_stencils_on_held", lambda self, held: {})
+    whole = run_repair(repair_scene(inp, **kw), tmp_path / "whole", progress=False)
+    a, b = open_sequence(tmp_path / "lean" / "spheres.npz"), open_sequence(tmp_path / "whole" / "spheres.npz")
+    for k in range(V.shape[0]):
+        np.testing.assert_allclose(a.frame(k), b.frame(k), rtol=0, atol=1e-9)
+    assert lean.summary["all_certified"] and whole.summary["all_certified"]

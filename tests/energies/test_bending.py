@@ -188,3 +188,43 @@ def test_set_rest_shape_and_protocol() -> None:
         E.set_rest_shape(bad)
     E2 = BendingEnergy.from_triangles(X, _sheet(2)[1], 1.0e3, 0.3, 0.1)
     np.testing.assert_array_equal(E2.hinges, H)
+
+
+def test_skipped_stencils_contribute_nothing_and_the_others_are_unchanged() -> None:
+    """``value_gradient_hessian_groups(skip=…)``: a long run of skipped hinges is not evaluated (no energy, gradient
+    or block); short skipped gaps may be evaluated with their neighbours; every kept hinge is evaluated, and every
+    evaluated block and the gradient are those of the full evaluation (small groups, so runs cross group borders)."""
+    from idp.energies._stencil_term import MIN_SKIPPED_RUN
+
+    X, F = _sheet(30)
+    H = triangle_hinges(F)
+    rng = np.random.default_rng(3)
+    x = X + 0.02 * rng.standard_normal(X.shape)
+    E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+    m = len(H)
+    assert m > 3 * MIN_SKIPPED_RUN
+    skip = rng.random(m) < 0.3  # short gaps
+    long_run = slice(m // 3, m // 3 + 2 * MIN_SKIPPED_RUN)
+    skip[long_run] = True
+    full: dict[int, np.ndarray] = {}
+    part: dict[int, np.ndarray] = {}
+
+    def collect(into):
+        def sink(first, blocks):
+            for j in range(blocks.shape[0]):
+                into[first + j] = blocks[j].copy()
+
+        return sink
+
+    _, g_full = E.value_gradient_hessian_groups(x, collect(full), group=64)
+    e_part, g_part = E.value_gradient_hessian_groups(x, collect(part), group=64, skip=skip)
+    done = np.zeros(m, dtype=bool)
+    done[list(part)] = True
+    assert done[~skip].all() and not done[long_run].any()
+    for i in part:
+        np.testing.assert_array_equal(part[i], full[i])
+    energies, grads = E.element_energies(x), E._run(x, True, False, False)[1]
+    assert e_part == pytest.approx(energies[done].sum(), rel=1e-12)
+    g_left_out = np.zeros_like(g_full)
+    np.add.at(g_left_out, E.element_dofs()[~done].ravel(), grads[~done].ravel())
+    np.testing.assert_allclose(g_part, g_full - g_left_out, rtol=0, atol=1e-12 * np.abs(g_full).max())
