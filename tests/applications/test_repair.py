@@ -402,13 +402,13 @@ def test_shell_stencils_on_held_dofs_are_skipped_without_changing_the_repair(tmp
     kw = {"dhat": 0.05, "prescribed": [{"indices": list(range(n))}], "newton_tol": 1e-6}
     skipped: list[int] = []
     find = StepSolver._stencils_on_held
-    monkeypatch.setattr(
-        StepSolver,
-        "_stencils_on_held",
-        lambda self, held: (lambda out: (skipped.append(sum(int(v.sum()) for v in out.values())), out)[1])(
-            find(self, held)
-        ),
-    )
+
+    def counting(self, held):
+        out = find(self, held)
+        skipped.append(sum(int(v.sum()) for v in out.values()))
+        return out
+
+    monkeypatch.setattr(StepSolver, "_stencils_on_held", counting)
     lean = run_repair(repair_scene(inp, **kw), tmp_path / "lean", progress=False)
     assert skipped and max(skipped) > 0  # the held sphere's triangles and hinges were skipped
     monkeypatch.setattr(StepSolver, "_stencils_on_held", lambda self, held: {})
