@@ -275,17 +275,13 @@ def _print_summary(result, out: Path) -> None:
         )
     rep = s.get("repair")
     if rep:
+        crossing = rep.get("frames_with_output_crossings", 0)
+        outside = rep.get("frames_with_output_crossings_outside_prescribed", crossing)
         lines.insert(
             0,
             f"repaired frames:    {rep.get('frames')} ({rep.get('unchanged_frames')} unchanged bit for bit); "
-            f"max deviation {rep.get('max_deviation', 0.0):.4g}, frames with new crossings: "
-            f"{rep.get('frames_with_output_crossings_outside_prescribed', rep.get('frames_with_output_crossings'))}"
-            + (
-                f" (prescribed parts crossing as in the input: {rep['frames_with_output_crossings']} frames)"
-                if rep.get("frames_with_output_crossings", 0)
-                > rep.get("frames_with_output_crossings_outside_prescribed", rep.get("frames_with_output_crossings"))
-                else ""
-            ),
+            f"max deviation {rep.get('max_deviation', 0.0):.4g}, frames with new crossings: {outside}"
+            + (f" (prescribed parts crossing as in the input: {crossing} frames)" if crossing > outside else ""),
         )
     flow = s.get("flow")
     if flow:

@@ -163,11 +163,11 @@ class Certifier:
                 n_pairs = len(intersecting_pair_keys(x, self.surface))
                 intersection_free = n_pairs == 0
             elif self.preserved or self.prescribed is not None:
-                from idp.contact.intersections import intersecting_pair_keys
+                from idp.contact.intersections import intersecting_pair_keys, pairs_within
 
                 if self.preserved or ipctk.has_intersections(self.mesh, vs, ipctk.LBVH()):
                     new = intersecting_pair_keys(x, self.surface) - self.preserved
-                    n_prescribed = self.prescribed_only(new)
+                    n_prescribed = 0 if self.prescribed is None else pairs_within(new, self.prescribed)
                     intersection_free = n_prescribed == len(new)
             else:
                 intersection_free = not ipctk.has_intersections(self.mesh, vs, ipctk.LBVH())
@@ -192,11 +192,3 @@ class Certifier:
             n_degenerate,
             n_prescribed,
         )
-
-    def prescribed_only(self, keys: set) -> int:
-        """How many of the crossing-pair keys (vertex-id tuples of the two primitives) have every vertex in the
-        prescribed group."""
-        if self.prescribed is None or not keys:
-            return 0
-        group = self.prescribed
-        return sum(1 for a, b in keys if group[list(a)].all() and group[list(b)].all())

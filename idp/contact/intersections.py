@@ -248,3 +248,9 @@ def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple
         a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
         keys = {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
     return keys
+
+
+def pairs_within(keys: set[tuple[tuple[int, ...], tuple[int, ...]]], vertices: np.ndarray) -> int:
+    """How many pair keys (of :func:`intersecting_pair_keys`) have every vertex of both primitives in the (n,) bool
+    mask ``vertices`` (a prescribed group's own crossings)."""
+    return sum(1 for a, b in keys if vertices[list(a)].all() and vertices[list(b)].all())

@@ -234,11 +234,6 @@ class ContactModel:
         self._prescribed = mask if mask.any() else None
 
     @property
-    def prescribed_group(self) -> np.ndarray | None:
-        """Collision-mesh vertex mask set by :meth:`leave_out_pairs_among` (None: every pair is guarded)."""
-        return self._prescribed
-
-    @property
     def still(self) -> np.ndarray | None:
         """Collision-mesh vertex mask set by :meth:`hold_still` (None: every vertex may move)."""
         return self._still

@@ -21,7 +21,6 @@ analysis before the first factorisation, and a step that would not fit stops wit
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from collections.abc import Callable
@@ -32,6 +31,7 @@ import scipy.sparse as sp
 
 from idp import interrupts
 from idp._faults import kill_point
+from idp.energies._stencil_term import StencilTerm
 from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
@@ -673,7 +673,7 @@ class StepSolver:
         return not np.any(P) or self.feasible_step(x, P, res) >= 1.0
 
     def _stencils_on_held(self, held_all: np.ndarray) -> dict[int, np.ndarray]:
-        """Per term index (terms with stencil DOFs and a skip option: shells): the stencils whose every DOF is
+        """Per term index (the shell terms, :class:`StencilTerm`): the stencils whose every DOF is
         held or not optimised. Their gradient lands only on DOFs the step zeroes and their Hessian only on rows it
         drops, so the Newton loop skips them (the mannequin's held head: half the triangles and hinges)."""
         s = self.system
@@ -682,12 +682,9 @@ class StepSolver:
         inactive = held_all | ~s.dof_map.free_mask
         out = {}
         for i, wt in enumerate(s.terms):
-            term = wt.term
-            if hasattr(term, "gradient_hessian_into") or not hasattr(term, "element_dofs"):
+            if not isinstance(wt.term, StencilTerm):
                 continue
-            if "skip" not in inspect.signature(term.value_gradient_hessian_groups).parameters:
-                continue
-            skip = inactive[term.element_dofs()].all(axis=1)
+            skip = inactive[wt.term.element_dofs()].all(axis=1)
             if skip.any():
                 out[i] = skip
         return out

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from idp.contact.intersections import intersecting_pair_keys
+from idp.contact.intersections import intersecting_pair_keys, pairs_within
 from idp.errors import MeshError
 
 
@@ -99,12 +99,9 @@ class RepairFrames:
         X[self.vertex_ids] = v
         keys = intersecting_pair_keys(X, self.faces)
         new = keys - self.preserved
-        prescribed = 0
-        if self.prescribed.size and new:
-            group = np.zeros(X.shape[0], dtype=bool)
-            group[self.vertex_ids[self.prescribed]] = True
-            prescribed = sum(1 for a, b in new if group[list(a)].all() and group[list(b)].all())
-        return len(keys), len(new), prescribed
+        group = np.zeros(X.shape[0], dtype=bool)
+        group[self.vertex_ids[self.prescribed]] = True
+        return len(keys), len(new), pairs_within(new, group)
 
     def report(self, system: Any, x: np.ndarray) -> dict:
         """Deviation from the input frame (per vertex: max, mean; max per coordinate as the manifest measures the
