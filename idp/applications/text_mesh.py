@@ -101,6 +101,8 @@ def _load_font(font: str | Path | None) -> _Font:
         data = path.read_bytes()
     except OSError as e:
         raise FontError(f"cannot read font file {path}: {e.strerror or e}") from e
+    except ValueError as e:  # a name the OS cannot take (an embedded NUL byte)
+        raise FontError(f"cannot read font file {str(path)!r}: {e}") from e
     try:
         tt = TTFont(io.BytesIO(data), fontNumber=0, lazy=False)
         units_per_em = int(tt["head"].unitsPerEm)

@@ -115,6 +115,9 @@ def _read_checkpoint(path: Path) -> dict[str, np.ndarray]:
     bad += [k for k in ("step", "kappa", "kappa_max") if ck[k].shape != ()]
     if ck["step"].dtype.kind not in "iu" or ck["x"].ndim != 2:
         bad.append("step" if ck["x"].ndim == 2 else "x")
+    done = ck.get("kappa_initialized")  # optional: absent in checkpoints written before it was kept
+    if done is not None and (done.shape != () or done.dtype.kind not in "biu"):
+        bad.append("kappa_initialized")
     if bad:
         raise SolverError(
             f"checkpoint {path}: {', '.join(sorted(set(bad)))} not as idp writes them; remove it to start the run over"

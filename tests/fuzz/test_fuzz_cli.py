@@ -360,6 +360,12 @@ def test_threads_out_of_range(tmp_path, value):
     assert not (tmp_path / "o").exists()
 
 
+def test_font_path_with_a_nul_byte(tmp_path):
+    """Regression (hypothesis): --font with an embedded NUL byte raised ValueError from pathlib; a clear error now."""
+    code, _out, err = call(["font", "A", "--font", "a\x00b", "--steps", "1", "-o", str(tmp_path / "o"), "-q"], tmp_path)
+    assert code == 2 and "cannot read font file 'a\\x00b'" in err, (code, err)
+
+
 def test_fixed_index_file_not_text(tmp_path):
     """Regression: repair --fixed indices:FILE with a binary FILE raised UnicodeDecodeError."""
     files = _inputs(tmp_path)
@@ -467,6 +473,21 @@ def test_unreadable_checkpoint(finished_run, tmp_path, damage):
     argv = ["run", str(finished_run / "scene.json"), "-o", str(out), "--resume", "-q"]
     code, _out, err = call(argv, tmp_path)
     assert code == 4 and err.startswith("idp: solver error: checkpoint") and "unreadable" in err, err
+
+
+@pytest.mark.parametrize("flag", [np.zeros(0, dtype=bool), np.array([1.5]), np.array("yes")])
+def test_checkpoint_with_a_damaged_kappa_flag(finished_run, tmp_path, flag):
+    """Regression (hypothesis): a checkpoint whose optional kappa_initialized is not a scalar flag raised
+    'truth value of an empty array is ambiguous' on --resume; it is refused with a message naming the key."""
+    with np.load(finished_run / "out" / "checkpoint.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["kappa_initialized"] = flag
+    out = tmp_path / "out"
+    out.mkdir()
+    np.savez(out / "checkpoint.npz", **arrays)
+    argv = ["run", str(finished_run / "scene.json"), "-o", str(out), "--resume", "-q"]
+    code, _out, err = call(argv, tmp_path)
+    assert code == 4 and "kappa_initialized not as idp writes them" in err, err
 
 
 def test_scene_output_dir_only_without_o(tmp_path):
