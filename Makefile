@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 CORE   := $(VENV)/.installed-core
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-portable lint bench bench-ref bench-full clean
+.PHONY: fuzz venv demo test test-portable lint bench bench-ref bench-full clean
 
 venv: $(STAMP)
 
@@ -43,6 +43,11 @@ test-portable: $(STAMP)
 	$(BIN)/python -m pytest -q $(PORTABLE_TESTS)
 	NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
 	$(BIN)/python -m pytest -q $(PORTABLE_TESTS)
+
+# A longer bug hunt than make test's fixed draws: new random inputs on every run (not in CI, which must pass or
+# fail the same way on every clean clone); pin what it finds as a regression test in tests/fuzz.
+fuzz: $(STAMP)
+	IDP_FUZZ_RANDOM=1 IDP_FUZZ_SCALE=$${IDP_FUZZ_SCALE:-10} $(BIN)/python -m pytest -q tests/fuzz
 
 # Static checks (also run by .ci/run and, per commit, by .pre-commit-config.yaml)
 LINT_PATHS := idp bench tests
