@@ -1,6 +1,8 @@
 """The numba surface broad phase: exact agreement with a brute-force box test, completeness
 against ipctk's collision set, and the exclusions (shared vertices, all-static pairs)."""
 
+import itertools
+
 import ipctk
 import numba
 import numpy as np
@@ -317,9 +319,10 @@ def test_a_group_leaves_only_the_pairs_among_its_own_vertices_out(name, sweep):
     V, E, F, nd = SCENES[name]()
     rng = np.random.default_rng(12)
     V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
-    group = V[:, 0] < np.median(V[:, 0])  # a spatial half: many pairs among it, many across
+    half = V[:, 0] < np.median(V[:, 0])  # a spatial half: many pairs among it, many across
+    scattered = rng.random(len(V)) < 0.6  # every class of primitive (in, partly in, out) in every cell
     still = rng.random(len(V)) < 0.3
-    for still_mask in (None, still):
+    for group, still_mask in itertools.product((half, scattered), (None, still)):
         fv_all, ee_all = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask))
         fv, ee = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask, group))
         want_fv = {(f, v) for f, v in fv_all if not (group[v] and group[F[f]].all())}
