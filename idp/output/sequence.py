@@ -34,7 +34,16 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from idp.errors import MeshError
-from idp.mesh.sequence import FORMATS, USD_SUFFIXES, FrameSequence, ObjSequence, PvdSequence, UsdSequence, import_pxr
+from idp.mesh.sequence import (
+    FORMATS,
+    USD_SUFFIXES,
+    FrameSequence,
+    ObjSequence,
+    PvdSequence,
+    UsdSequence,
+    import_pxr,
+    open_sequence,
+)
 
 _FRAME_FILE = re.compile(r"^frame_(\d{5,})\.(obj|vtu|npy)$")
 
@@ -311,6 +320,27 @@ class _PartialWriter(SequenceWriter):
 
     def _frame_file(self, k: int) -> Path:
         return self.partial / f"frame_{k:05d}.npy"
+
+    def recover_finished(self, frames: list[int]) -> int:
+        """Before a resumed run: when an earlier run *finished* this output (assembled it and removed the partial
+        store) and is now extended (``--resume`` with more steps), put its frames back into the partial store as
+        ``frames[:F]`` (F the frames it holds, the first of the same frame list), so the longer sequence can be
+        assembled. Frames already in the partial store are kept. Returns how many were recovered."""
+        if not self.out.exists() or self.frames_written():
+            return 0
+        try:
+            done = open_sequence(self.out)
+            count = min(int(done.num_frames), len(frames))
+            if self.num_vertices is not None and done.num_vertices != self.num_vertices:
+                return 0
+            for i in range(count):
+                self._write(frames[i], np.asarray(done.frame(i), dtype=np.float64), False)
+        except (OSError, ValueError, MeshError) as exc:
+            raise MeshError(
+                f"cannot resume into {self.out}: the finished output of the earlier run is unreadable ({exc}); "
+                "remove it and the checkpoint to start over"
+            ) from None
+        return count
 
     def frames_written(self) -> list[int]:
         return _numbered(self.partial, "npy")

@@ -241,6 +241,26 @@ def test_a_killed_repair_resumes_to_the_same_output(tmp_path):
     assert np.array_equal(a.frame(V.shape[0] - 1), V[-1]) and np.array_equal(b.frame(V.shape[0] - 1), V[-1])
 
 
+@pytest.mark.parametrize("fmt", ["npz", "obj"])
+def test_a_finished_repair_extended_by_resume(tmp_path, fmt):
+    """Regression: a repair that finished its --steps and was then resumed with more steps repaired the new
+    frames and failed at the end ("cannot finish OUT.npz: frame(s) 0, 1, ... not written"): the assembled npz was
+    not taken back. Now the extended output holds every frame, the same as one run of the longer length."""
+    V, F, _ = two_spheres()
+    inp = _save_npz(tmp_path / "s.npz", V, F)
+    scene = repair_scene(inp, dhat=DHAT, output=fmt)
+    run_repair(scene, tmp_path / "whole", progress=False, steps=6)
+    run_repair(scene, tmp_path / "ext", progress=False, steps=3)
+    name = "s.npz" if fmt == "npz" else "frames"
+    assert open_sequence(tmp_path / "ext" / name).num_frames == 4
+    result = run_repair(scene, tmp_path / "ext", progress=False, steps=6, resume=True)
+    a, b = open_sequence(tmp_path / "whole" / name), open_sequence(tmp_path / "ext" / name)
+    assert a.num_frames == b.num_frames == 7 and result.summary["all_certified"]
+    for k in range(7):
+        assert np.array_equal(a.frame(k), b.frame(k)), f"frame {k} differs"
+    assert not (tmp_path / "ext" / "s.npz.partial").exists()
+
+
 def test_cli_arguments_are_checked_with_clear_errors(tmp_path, capsys):
     from idp.applications.repair import parse_frames, parse_selection
     from idp.cli import main
