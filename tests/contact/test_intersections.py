@@ -6,6 +6,7 @@ from idp.contact.intersections import (
     count_intersections,
     find_intersecting_pairs,
     find_intersecting_segments,
+    intersecting_pair_keys,
 )
 from idp.mesh.generate import polygon_circle, tet_box
 from idp.mesh.surface import boundary_faces, unique_edges
@@ -66,3 +67,19 @@ def test_2d_circles():
     v = np.vstack([a.vertices, [[-2.0, 0.05], [2.0, 0.05]]])
     f = np.vstack([a.faces, [[40, 41]]])
     assert count_intersections(v, f) == 2
+
+
+def test_pair_keys_memo_answers_only_the_same_input():
+    """intersecting_pair_keys remembers its last answers by a digest of the input: the same vertices again give the
+    same keys (a copy: changing it changes nothing remembered), moved vertices are computed afresh."""
+    va, fa, n = _box_surface(np.zeros(3))
+    vb, fb, _ = _box_surface(np.array([0.7, 0.3, 0.2]))
+    v, f = np.vstack([va, vb]), np.vstack([fa, fb + n])
+    first = intersecting_pair_keys(v, f)
+    assert first and intersecting_pair_keys(v.copy(), f.copy()) == first
+    first.clear()
+    assert intersecting_pair_keys(v, f)  # the memo kept its own copy
+    apart = v.copy()
+    apart[n:] += np.array([3.0, 0.0, 0.0])
+    assert intersecting_pair_keys(apart, f) == set()
+    assert intersecting_pair_keys(v, f) == intersecting_pair_keys(v[:, [0, 1, 2]].copy(order="F"), f)
