@@ -242,10 +242,10 @@ class ContactModel:
         """Candidates without the excluded touching pairs (:meth:`exclude_touching`)."""
         if self._excluded_fv.size and fv.size:
             keep = ~np.isin(fv[:, 0].astype(np.int64) * nv + fv[:, 1], self._excluded_fv, assume_unique=False)
-            fv = fv[keep]
+            fv = fv if keep.all() else fv[keep]
         if self._excluded_ee.size and ee.size:
             keep = ~np.isin(ee[:, 0].astype(np.int64) * len(self._edges) + ee[:, 1], self._excluded_ee)
-            ee = ee[keep]
+            ee = ee if keep.all() else ee[keep]
         return fv, ee
 
     # -- geometry -------------------------------------------------------------
