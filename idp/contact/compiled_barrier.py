@@ -116,6 +116,50 @@ def _classify(V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps):  # pragma: n
 
 
 @njit(cache=True, error_model="numpy")
+def _merge_repeated(key, verts, nv):  # pragma: no cover - compiled
+    """keep[c] = False for every repeat of an earlier EV / VV collision with the same key (key >= 0; the first in
+    index order is kept), weight[c] = how many it stands for. Bucketed by the first vertex (a counting sort, then
+    an insertion sort within each vertex's few entries): the mannequin's 143,000 pairs within d̂ hold 31,000
+    distinct ones, and an argsort of all keys was 80 % of the compaction."""
+    m = key.size
+    keep = np.ones(m, np.bool_)
+    weight = np.ones(m)
+    start = np.zeros(nv + 1, np.int64)
+    for c in range(m):
+        if key[c] >= 0:
+            start[verts[c, 0] + 1] += 1
+    for v in range(nv):
+        start[v + 1] += start[v]
+    at = start[:-1].copy()
+    bucket = np.empty(start[nv], np.int64)
+    for c in range(m):  # in index order, so each bucket lists its entries in index order
+        if key[c] >= 0:
+            v = verts[c, 0]
+            bucket[at[v]] = c
+            at[v] += 1
+    for v in range(nv):
+        lo, hi = start[v], start[v + 1]
+        for i in range(lo + 1, hi):  # stable insertion sort by key: equal keys keep index order
+            c = bucket[i]
+            k = key[c]
+            j = i - 1
+            while j >= lo and key[bucket[j]] > k:
+                bucket[j + 1] = bucket[j]
+                j -= 1
+            bucket[j + 1] = c
+        i = lo
+        while i < hi:
+            first = bucket[i]
+            e = i + 1
+            while e < hi and key[bucket[e]] == key[first]:
+                keep[bucket[e]] = False
+                e += 1
+            weight[first] = e - i
+            i = e
+    return keep, weight
+
+
+@njit(cache=True, error_model="numpy")
 def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no cover - compiled
     """The unique active collisions from classified candidates (see the module docstring): point–plane,
     line–line and mollified edge pairs as they are; EV / VV pairs merged, their weight the count."""
@@ -179,22 +223,7 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
                     verts[c, 2] = r
                 key[c] = ((np.int64(kd) * nv + p) * nv + q) * (nv + 1) + (r + 1)
         c += 1
-    # merge repeated EV / VV pairs
-    order = np.argsort(key)
-    keep = np.ones(m, np.bool_)
-    weight = np.ones(m)
-    j = 0
-    while j < m:
-        cj = order[j]
-        if key[cj] < 0:
-            j += 1
-            continue
-        e = j + 1
-        while e < m and key[order[e]] == key[cj]:
-            keep[order[e]] = False
-            e += 1
-        weight[cj] = e - j
-        j = e
+    keep, weight = _merge_repeated(key, verts, nv)
     mk = 0
     for i in range(m):
         if keep[i]:

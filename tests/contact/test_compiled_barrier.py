@@ -143,3 +143,27 @@ def test_swept_candidates_cover_the_segment():
         assert e1.num_active == e2.num_active == ref.evaluate(z).num_active
         assert new.value(e1) == pytest.approx(new.value(e2), rel=1e-12)
     assert new.max_collision_free_step(x, y, cand) == pytest.approx(ref.max_collision_free_step(x, y), rel=1e-6)
+
+
+def test_repeated_edge_vertex_pairs_merge_into_the_first_with_their_count():
+    """_merge_repeated keeps the first (in index order) of each key >= 0 and counts its repeats; keys < 0 (pairs
+    that are never merged) are all kept with weight 1."""
+    from idp.contact.compiled_barrier import _merge_repeated
+
+    rng = np.random.default_rng(3)
+    nv, m = 40, 3000
+    verts = np.full((m, 4), -1, np.int32)
+    verts[:, 0] = rng.integers(0, nv, m)
+    other = rng.integers(0, 6, m)
+    key = np.where(rng.random(m) < 0.2, -1, verts[:, 0].astype(np.int64) * 10 + other)
+    keep, weight = _merge_repeated(key, verts, nv)
+    first: dict[int, int] = {}
+    count: dict[int, int] = {}
+    for c, k in enumerate(key.tolist()):
+        if k >= 0:
+            first.setdefault(k, c)
+            count[k] = count.get(k, 0) + 1
+    want_keep = np.array([k < 0 or first[k] == c for c, k in enumerate(key.tolist())])
+    want_weight = np.array([1.0 if k < 0 or first[k] != c else float(count[k]) for c, k in enumerate(key.tolist())])
+    assert np.array_equal(keep, want_keep)
+    assert np.array_equal(weight[keep], want_weight[keep])
