@@ -493,7 +493,14 @@ class ContactModel:
         if current_min_distance is not None:  # the narrow phase is known: bound the candidates with its rescaling
             ccd, near_contact = self._choose_ccd(current_min_distance)
             dist, speed, first, _ = ccd_filter.move_bounds(
-                v0, v1, self._faces, self._edges, fv, ee, float(ccd.conservative_rescaling)
+                v0,
+                v1,
+                self._faces,
+                self._edges,
+                fv,
+                ee,
+                float(ccd.conservative_rescaling),
+                min_gap=NEAR_CONTACT * self.dhat,
             )
         else:  # known only after d(0): bound for both narrow phases in one pass
             dist, speed, first, first_fallback = ccd_filter.move_bounds(
@@ -505,6 +512,7 @@ class ContactModel:
                 ee,
                 float(self._ccd.conservative_rescaling),
                 float(self._fallback_ccd.conservative_rescaling),
+                min_gap=NEAR_CONTACT * self.dhat,
             )
             moving = speed > 0.0
             ccd, near_contact = self._choose_ccd(float(dist[moving].min()) if moving.any() else np.inf)

@@ -60,6 +60,39 @@ def test_bounds_are_conservative(name):
 
 
 @pytest.mark.parametrize("name", sorted(SCENES))
+@pytest.mark.parametrize("min_gap", [0.0, 2e-3])
+def test_box_gap_shortcut_keeps_the_ccd_order(name, min_gap):
+    """With ``min_gap`` a pair whose boxes alone keep it clear of the move gets their gap as d(0): a lower bound,
+    never below ``min_gap``; every pair the CCD sees (t < 1) has the same exact d(0) and t as without it, and the
+    bound still holds for all pairs (the distance stays above (1 − r)·d(0) before t)."""
+    x, y, surf, nd = _moved(name, 0.002, 2)
+    cm = ContactModel(x, surf, nd, 0.05)
+    v0, v1 = cm.surface_positions(x), cm.surface_positions(y)
+    fv, ee = cm.sweep_candidates(x, y)
+    r, r2 = 0.9, 0.8
+    exact = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r, r2)
+    fast = ccd_filter.move_bounds(v0, v1, cm._faces, cm._edges, fv, ee, r, r2, min_gap=min_gap)
+    skipped = fast[0] != exact[0]
+    assert skipped.sum() > 0.2 * skipped.size  # the shortcut is taken
+    # a lower bound up to rounding (the boxes' gap along z can be the exact difference of two coordinates, one ulp
+    # above the distance kernel's value for a point straight above a triangle)
+    assert (fast[0] <= exact[0] * (1 + 1e-12)).all() and (fast[0][skipped] >= min_gap).all()
+    np.testing.assert_array_equal(fast[1], exact[1])
+    for t_fast, t_exact in ((fast[2], exact[2]), (fast[3], exact[3])):
+        seen = t_exact < 1.0
+        np.testing.assert_array_equal(t_fast < 1.0, seen)
+        np.testing.assert_array_equal(t_fast[seen], t_exact[seen])
+        assert (t_fast[skipped] >= 1.0).all()
+    np.testing.assert_array_equal(fast[0][~skipped], exact[0][~skipped])
+    pairs, is_pt = _pairs(cm, fv, ee)
+    limit = (1.0 - r) * exact[0]
+    for t in np.linspace(0.0, 1.0, 33):
+        d = pair_distances(v0 + t * (v1 - v0), pairs, is_pt)
+        before = fast[2] > t
+        assert (d[before] >= limit[before] * (1 - 1e-9)).all()
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
 @pytest.mark.parametrize("scale", [0.003, 0.01, 0.03])
 def test_filtered_ccd_gives_ipctk_step(name, scale):
     x, y, surf, nd = _moved(name, scale, 1)
