@@ -206,7 +206,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "idp.contact.ccd_filter",
             "_bounds",
             "(float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], float64,"
-            " float64, int64, float64[::1], float64[::1], float64[::1], float64[::1])",
+            " float64, int64, float64, float64[::1], float64[::1], float64[::1], float64[::1])",
             4.0,
         ),
         Kernel(
