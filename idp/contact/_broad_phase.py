@@ -342,6 +342,23 @@ def _chunks(start, k, spare):  # pragma: no cover
 
 
 @njit(cache=True, inline="always")
+def _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, mj):  # pragma: no cover
+    """Branch-free test of a cell's entry j against a box (lo l, inflated hi h, mask mi): the boxes overlap, this
+    cell owns the pair (the low corner of their cell ranges, bits 0-2 of the masks) and not both are in the group
+    (bit 3)."""
+    return (
+        (box[j, 0] <= h0)
+        & (l0 <= box[j, 3])
+        & (box[j, 1] <= h1)
+        & (l1 <= box[j, 4])
+        & (box[j, 2] <= h2)
+        & (l2 <= box[j, 5])
+        & (((mi | mj) & 7) == 7)
+        & ((mi & mj) < 8)
+    )
+
+
+@njit(cache=True, inline="always")
 def _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end):  # pragma: no cover
     """Test face entry i of a cell against its vertex entries [r0, r1) and [r2, r3); returns the next output row."""
     l0, l1, l2 = box[i, 0], box[i, 1], box[i, 2]
@@ -352,19 +369,7 @@ def _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end):  # 
         ja, jb = (r0, r1) if run == 0 else (r2, r3)
         for j in range(ja, jb):
             b = vt[j, 0]
-            ok = (
-                (box[j, 0] <= h0)
-                & (l0 <= box[j, 3])
-                & (box[j, 1] <= h1)
-                & (l1 <= box[j, 4])
-                & (box[j, 2] <= h2)
-                & (l2 <= box[j, 5])
-                & (((mi | msk[j]) & 7) == 7)
-                & ((mi & msk[j]) < 8)
-                & (a0 != b)
-                & (a1 != b)
-                & (a2 != b)
-            )
+            ok = _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b) & (a1 != b) & (a2 != b)
             if pf < fv_end:
                 out_fv[pf, 0] = f
                 out_fv[pf, 1] = b
@@ -430,14 +435,7 @@ def _pairs(
                 for j in range(j0, j1):
                     b0, b1 = vt[j, 0], vt[j, 1]
                     ok = (
-                        (box[j, 0] <= h0)
-                        & (l0 <= box[j, 3])
-                        & (box[j, 1] <= h1)
-                        & (l1 <= box[j, 4])
-                        & (box[j, 2] <= h2)
-                        & (l2 <= box[j, 5])
-                        & (((mi | msk[j]) & 7) == 7)
-                        & ((mi & msk[j]) < 8)
+                        _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
                         & (a0 != b0)
                         & (a0 != b1)
                         & (a1 != b0)

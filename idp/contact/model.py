@@ -490,30 +490,14 @@ class ContactModel:
         if candidates is None:
             candidates = self._candidates(v0, v1)
         fv, ee = candidates
+        move = (v0, v1, self._faces, self._edges, fv, ee)
+        near_gap = NEAR_CONTACT * self.dhat  # pairs whose boxes are this far apart may skip the exact d(0)
         if current_min_distance is not None:  # the narrow phase is known: bound the candidates with its rescaling
             ccd, near_contact = self._choose_ccd(current_min_distance)
-            dist, speed, first, _ = ccd_filter.move_bounds(
-                v0,
-                v1,
-                self._faces,
-                self._edges,
-                fv,
-                ee,
-                float(ccd.conservative_rescaling),
-                min_gap=NEAR_CONTACT * self.dhat,
-            )
+            dist, speed, first, _ = ccd_filter.move_bounds(*move, float(ccd.conservative_rescaling), min_gap=near_gap)
         else:  # known only after d(0): bound for both narrow phases in one pass
-            dist, speed, first, first_fallback = ccd_filter.move_bounds(
-                v0,
-                v1,
-                self._faces,
-                self._edges,
-                fv,
-                ee,
-                float(self._ccd.conservative_rescaling),
-                float(self._fallback_ccd.conservative_rescaling),
-                min_gap=NEAR_CONTACT * self.dhat,
-            )
+            rescalings = (float(self._ccd.conservative_rescaling), float(self._fallback_ccd.conservative_rescaling))
+            dist, speed, first, first_fallback = ccd_filter.move_bounds(*move, *rescalings, min_gap=near_gap)
             moving = speed > 0.0
             ccd, near_contact = self._choose_ccd(float(dist[moving].min()) if moving.any() else np.inf)
             if ccd is not self._ccd and first_fallback is not None:  # (asked for: never None here)
