@@ -228,7 +228,7 @@ def run_repair(
     frames = cond.frames[: built.run.steps + 1]  # a step cap (bench, --steps) repairs the first frames only
     writer = RepairFrameWriter(sequence_writer(seq_out, seq.faces, like=seq, format=fmt, frames=frames), cond)
     writer.last_step = len(frames) - 1
-    if resume and hasattr(writer.writer, "recover_finished"):  # an earlier run finished the npz/USD: extend it
+    if resume:  # an earlier run may have finished its (shorter) sequence: extend it
         writer.writer.recover_finished(list(frames))
     result = run_built(scene, built, out, progress=progress, resume=resume, force_resume=force_resume, writer=writer)
     from idp.mesh.sequence import open_sequence

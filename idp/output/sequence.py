@@ -137,6 +137,12 @@ class SequenceWriter:
         """Indices of the frames present on disk (written by this writer or an earlier, interrupted one)."""
         raise NotImplementedError
 
+    def recover_finished(self, frames: list[int]) -> int:
+        """Before a resumed run: take back the frames of an output an earlier run finished (see
+        :meth:`_PartialWriter.recover_finished`). Per-frame formats (OBJ, VTU) keep every frame file, so nothing is
+        needed; returns how many frames were recovered."""
+        return 0
+
     def close(self) -> None:
         """Finish the output (PVD index, npz/USD assembly); MeshError when frames are missing."""
         if self._closed:
