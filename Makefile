@@ -15,6 +15,7 @@ $(CORE): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[cholmod]'
+	$(BIN)/python -c "from idp._bytecode import compile_package; compile_package()"  # as a wheel install does
 	touch $(CORE)
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)

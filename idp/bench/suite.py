@@ -419,6 +419,9 @@ def main(args) -> int:
         tiers = ("quick",) if args.quick else ("quick", "full")
         names = [n for n, (_, tier) in table.items() if tier in tiers]
     runs = args.runs or (1 if args.quick or not args.with_reference else 2)
+    from idp._bytecode import compile_package
+
+    compile_package()  # each run's process then imports idp as an installed wheel would (idp/_bytecode.py)
     reference = None
     if args.with_reference:
         from idp.bench.data import find_data_dir
