@@ -90,11 +90,6 @@ def reference_child(reference: Path, data: Path, seq: str, frames: int, work: Pa
     result.write_text(json.dumps(record))
 
 
-def _read_obj_vertices(path: Path) -> np.ndarray:
-    rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
-    return np.asarray(rows, dtype=float)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--output", type=Path)
@@ -133,7 +128,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     rec = json.loads(result.read_text())
     out = Path(rec.pop("output"))
-    frames = [_read_obj_vertices(out / f"shell{k}.obj") for k in range(args.frames + 1)]
+    import meshio
+
+    frames = [np.asarray(meshio.read(out / f"shell{k}.obj").points, dtype=float) for k in range(args.frames + 1)]
     with np.load(data / "repair" / f"{args.seq}_unfixed.npz") as d:
         faces = np.asarray(d["faces"], dtype=np.int32)
     np.savez_compressed(work / f"{args.seq}_reference.npz", vertices=np.stack(frames), faces=faces)
