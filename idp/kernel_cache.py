@@ -125,8 +125,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel(
             "idp.energies._bending_kernels",
             "bending_terms",
-            "(float64[:, ::1], int64[:, ::1], float64[::1], float64[::1], boolean, boolean, boolean, float64[::1],"
-            " float64[:, ::1], float64[:, :, ::1])",
+            "(float64[:, ::1], int64[:, ::1], float64[::1], float64[::1], boolean, boolean, boolean, boolean,"
+            " float64[::1], float64[:, ::1], float64[:, :, ::1])",
             8.0,
         ),
         Kernel("idp.energies._bending_kernels", "hinge_angles", "(float64[:, ::1], int64[:, ::1], float64[::1])", 0.5),

@@ -680,7 +680,9 @@ def _shell_terms(shells, x: np.ndarray, masses: np.ndarray) -> list[WeightedTerm
                 terms.append(
                     WeightedTerm(
                         f"{obj.name}.bending",
-                        BendingEnergy(x, hinges, m.youngs_modulus, m.poisson_ratio, m.thickness, m.bending),
+                        BendingEnergy(
+                            x, hinges, m.youngs_modulus, m.poisson_ratio, m.thickness, m.bending, m.bending_hessian
+                        ),
                     )
                 )
     return terms

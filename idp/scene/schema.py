@@ -46,7 +46,13 @@ from idp.scene.layout_schema import (
     TransformSpec,
     expand_instances,
 )
-from idp.scene.repair_schema import REPAIR_DHAT, REPAIR_NEWTON_TOL, RepairConfig, RepairSelector
+from idp.scene.repair_schema import (
+    REPAIR_BENDING_HESSIAN,
+    REPAIR_DHAT,
+    REPAIR_NEWTON_TOL,
+    RepairConfig,
+    RepairSelector,
+)
 from idp.scene.schema_base import (
     Bool,
     Float,
@@ -884,6 +890,11 @@ class Scene(_Model):
                 ob.shell = ShellMaterial(
                     youngs_modulus=100.0, poisson_ratio=0.4, thickness=0.01, bending=1.0, density=1000.0
                 )
+        shell = self.objects[0].shell if len(self.objects) == 1 else None
+        if shell is not None and "bending_hessian" not in shell.model_fields_set:
+            # a repaired frame stays near its input, the bending's rest shape: the Gauss–Newton Hessian serves
+            # as well as the projected one there, at a tenth of its cost (docs/animation-repair.md)
+            shell.bending_hessian = REPAIR_BENDING_HESSIAN
         if "dhat" not in self.contact.model_fields_set:
             self.contact.dhat = REPAIR_DHAT
         if "newton_tol" not in self.solver.model_fields_set:

@@ -13,7 +13,9 @@ NonNegFloat = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)]
 
 class ShellMaterial(_Model):
     """Material of a shell object: StVK membrane (``youngs_modulus`` E, ``poisson_ratio`` ν, ``thickness`` t) and
-    discrete-shell bending scaled by ``bending`` (stiffness ``bending`` · E t³ / (12 (1 − ν²))).
+    discrete-shell bending scaled by ``bending`` (stiffness ``bending`` · E t³ / (12 (1 − ν²))), whose Newton
+    Hessian is ``bending_hessian``: the exact one PSD-projected per hinge, or its Gauss–Newton part
+    (:mod:`idp.energies.bending`).
 
     E = 0 turns the membrane off and ``bending`` = 0 the bending off (the normal flow's shells carry no elastic
     energy, as in the authors' set-up; a shell without a ``shell`` table in a scene with ``[flow]`` gets exactly
@@ -24,6 +26,7 @@ class ShellMaterial(_Model):
     thickness: PosFloat = 1e-3
     density: PosFloat = 1000.0
     bending: NonNegFloat = 1.0
+    bending_hessian: Literal["projected", "gauss_newton"] = "projected"
 
 
 #: a flow scene's default Newton tolerance: RMS step per vertex below this fraction of |β| (solver.newton_norm =

@@ -14,7 +14,7 @@ import pytest
 
 from idp.api import simulate
 from idp.cli import main
-from idp.errors import IntersectingInputError
+from idp.errors import IntersectingInputError, SceneError
 from idp.mesh.generate import ellipsoid_surface, tri_disk
 from idp.mesh.surface import enclosed_volume
 from idp.scene.load import scene_from_dict
@@ -164,10 +164,18 @@ def test_intersecting_shells_are_refused_or_preserved(tmp_path):
     assert first > 0 and all(s["certificate"]["intersecting_pairs"] <= first for s in stats["steps"])
 
 
-def test_elastic_shell_pushed_by_a_handle_stays_injective(tmp_path):
-    """Membrane + bending (§4.4): a sphere's top cap pushed down by a handle towards its pinned bottom."""
+@pytest.mark.parametrize("bending_hessian", ["projected", "gauss_newton"])
+def test_elastic_shell_pushed_by_a_handle_stays_injective(tmp_path, bending_hessian):
+    """Membrane + bending (§4.4): a sphere's top cap pushed down by a handle towards its pinned bottom (with
+    either Newton Hessian of the bending)."""
     obj = _sphere("ball", (0, 0, 0), radius=0.2)
-    obj["shell"] = {"youngs_modulus": 1e4, "poisson_ratio": 0.3, "thickness": 0.01, "density": 100.0}
+    obj["shell"] = {
+        "youngs_modulus": 1e4,
+        "poisson_ratio": 0.3,
+        "thickness": 0.01,
+        "density": 100.0,
+        "bending_hessian": bending_hessian,
+    }
     obj["fixed"] = [{"box": [[0, 0, 0], [1, 0.1, 1]], "relative": True}]
     obj["handles"] = [
         {
@@ -192,6 +200,13 @@ def test_elastic_shell_pushed_by_a_handle_stays_injective(tmp_path):
     assert np.allclose(res.x[top, 1] - x0[top, 1], -0.06 * 4 * 0.1, atol=2e-3)  # 4 steps of √h = 0.1 s
     assert res.summary["steps_with_unmet_targets"] == 0
     assert enclosed_volume(res.x, ellipsoid_surface(radii=(0.2,) * 3, subdivisions=2).faces) > 0
+
+
+def test_unknown_bending_hessian_is_named():
+    obj = _sphere("ball", (0, 0, 0), radius=0.2)
+    obj["shell"] = {"bending_hessian": "exact"}
+    with pytest.raises(SceneError, match="bending_hessian"):
+        scene_from_dict({"name": "s", "dim": 3, "objects": [obj]})
 
 
 @pytest.mark.parametrize("other", ["volume", "obstacle"])

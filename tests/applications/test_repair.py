@@ -406,6 +406,24 @@ def test_repair_scenes_balance_kappa_once_and_let_prescribed_parts_follow_the_in
     assert scene.contact.kappa_init == "every_step" and scene.repair.prescribed_contact == "guarded"
     plain = scene_from_dict({"objects": [{"name": "s", "kind": "shell", "mesh": str(inp), "frame": 0}]})
     assert plain.contact.kappa_init == "every_step"
+
+
+def test_repair_shells_take_the_gauss_newton_bending_hessian_unless_set(tmp_path):
+    """A repair's shell (made by the scene or given) defaults to the Gauss–Newton bending Hessian; a shell that
+    sets ``bending_hessian`` keeps it, and a shell outside a repair keeps the projected one."""
+    from idp.scene.load import scene_from_dict
+
+    V, F, _ = two_spheres(num_frames=3)
+    inp = _save_npz(tmp_path / "spheres.npz", V, F)
+    assert scene_from_dict({"repair": {"input": str(inp)}}).objects[0].shell.bending_hessian == "gauss_newton"
+    given = {"name": "s", "kind": "shell", "mesh": str(inp), "shell": {"youngs_modulus": 50.0}}
+    scene = scene_from_dict({"repair": {"input": str(inp)}, "objects": [given]})
+    assert scene.objects[0].shell.bending_hessian == "gauss_newton" and scene.objects[0].shell.youngs_modulus == 50
+    given["shell"]["bending_hessian"] = "projected"
+    scene = scene_from_dict({"repair": {"input": str(inp)}, "objects": [given]})
+    assert scene.objects[0].shell.bending_hessian == "projected"
+    plain = scene_from_dict({"objects": [{"name": "s", "kind": "shell", "mesh": str(inp), "frame": 0}]})
+    assert plain.objects[0].shell is None or plain.objects[0].shell.bending_hessian == "projected"
     with pytest.raises(SceneError, match="prescribed_contact"):
         scene_from_dict({"repair": {"input": str(inp), "prescribed_contact": "loose"}})
 

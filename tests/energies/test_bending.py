@@ -167,6 +167,39 @@ def test_projected_blocks_are_psd_and_exact_where_psd() -> None:
     assert seen_exact > 0 and seen_projected > 0
 
 
+@pytest.mark.parametrize("name", list(_cases()))
+def test_gauss_newton_blocks_are_the_rank_one_part(name: str) -> None:
+    """``hessian = "gauss_newton"``: each PSD block is 2c∇θ∇θᵀ (its quadratic form 2c(∇θ·v)², ∇θ·v by central
+    differences of the angle), the exact one where δ = 0 (at rest); an exact request stays exact."""
+    X, H, x = _cases()[name]
+    E = BendingEnergy(X, H, 1.0e3, 0.3, 0.1, hessian="gauss_newton")
+    P = BendingEnergy(X, H, 1.0e3, 0.3, 0.1)
+    np.testing.assert_array_equal(E.element_hessians(x, project=False), P.element_hessians(x, project=False))
+    blocks = E.element_hessians(x, project=True)
+    c = E._stiffness
+    rng = np.random.default_rng(3)
+    eps = 1e-6
+    for k, (dofs, b) in enumerate(zip(E.element_dofs(), blocks, strict=True)):
+        scale = max(np.abs(b).max(), 1e-300)
+        w = np.linalg.eigvalsh(b)
+        assert w.min() >= -1e-12 * scale and np.sum(w > 1e-9 * scale) <= 1
+        for _ in range(3):
+            v = rng.normal(size=12)
+            dv = np.zeros(x.size)
+            dv[dofs] = v
+            angle = lambda y: dihedral_angles(y.reshape(-1, 3), H[k : k + 1])[0]  # noqa: E731
+            slope = (angle(x.ravel() + eps * dv) - angle(x.ravel() - eps * dv)) / (2 * eps)
+            assert v @ b @ v == pytest.approx(2 * c[k] * slope**2, rel=1e-6, abs=1e-9 * scale)
+    at_rest = E.element_hessians(X, project=True)
+    np.testing.assert_allclose(at_rest, P.element_hessians(X, project=False), atol=1e-12 * np.abs(at_rest).max())
+
+
+def test_unknown_bending_hessian_is_refused() -> None:
+    X, H, _ = _cases()["random_sheet"]
+    with pytest.raises(ValueError, match="bending hessian"):
+        BendingEnergy(X, H, 1.0e3, 0.3, 0.1, hessian="exact")
+
+
 def test_set_rest_shape_and_protocol() -> None:
     rng = np.random.default_rng(1)
     X, H, x = _cases()["random_sheet"]
