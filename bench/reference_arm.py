@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -284,12 +283,9 @@ def main(argv: list[str] | None = None) -> int:
                 scene = HERE.parent / "idp" / "scenes" / "paper" / SCENES[args.mesh]
                 cmd = [sys.executable, __file__, "--child-idp", str(scene), str(args.youngs), str(args.frames)]
                 cmd.append(str(work))
-            t0 = time.perf_counter()
-            with open(args.output / f"{which}.log", "w") as fh:
-                proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT)
-                _, status, usage = os.wait4(proc.pid, 0)
-            wall, rss = time.perf_counter() - t0, usage.ru_maxrss / 1024.0
-            rc = os.waitstatus_to_exitcode(status)
+            from idp.bench.reference_run import run_measured
+
+            wall, rss, rc = run_measured(cmd, env, args.output / f"{which}.log")
         if not work.exists():
             results[which] = f"no run in {work}"
             continue

@@ -21,7 +21,6 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -71,15 +70,6 @@ def growth(first: Path, last: Path) -> tuple[str, float]:
         return "volume", enclosed_volume(points[1], faces) / enclosed_volume(points[0], faces)
     area = [float(np.linalg.norm(face_area_normals(x, faces), axis=1).sum()) for x in points]
     return "area", area[1] / area[0]
-
-
-def _run_child(cmd: list[str], env: dict[str, str], log: Path) -> tuple[float, float, int]:
-    """Run ``cmd``; (process wall s, peak RSS MB, exit code)."""
-    t0 = time.perf_counter()
-    with open(log, "w") as fh:
-        proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(proc.pid, 0)
-    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -168,7 +158,9 @@ def run_once(which: str, name: str, case: FlowCase, reference: Path, data: Path,
     else:
         scene = HERE.parent / "idp" / "scenes" / "paper" / case.scene
         cmd = [sys.executable, __file__, "--child-idp", name, str(scene), str(work / "out")]
-    wall, rss, rc = _run_child(cmd, env, work / "log.txt")
+    from idp.bench.reference_run import run_measured
+
+    wall, rss, rc = run_measured(cmd, env, work / "log.txt")
     if rc != 0 or not result.exists():
         tail = (work / "log.txt").read_text(errors="replace")[-2000:]
         raise RuntimeError(f"{which} run of {name} failed (rc {rc}):\n{tail}")

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -105,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("-o/--output is required")
     from idp.bench.data import require_data_dir
     from idp.bench.machine import describe
-    from idp.bench.reference_run import find_reference
+    from idp.bench.reference_run import find_reference, run_measured
 
     data = require_data_dir()
     reference = find_reference(data)
@@ -116,12 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=False)
     env = dict(os.environ, OMP_NUM_THREADS="2", OPENBLAS_NUM_THREADS="2", PYTHONDONTWRITEBYTECODE="1")
     cmd = [sys.executable, "-B", __file__, "--child", str(reference), str(data), args.seq, str(args.frames), str(work)]
-    t0 = time.perf_counter()
-    with open(work / "log.txt", "w") as fh:
-        proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    rc = os.waitstatus_to_exitcode(status)
+    wall, peak_mb, rc = run_measured(cmd, env, work / "log.txt")
     result = work / "result.json"
     if rc != 0 or not result.exists():
         print((work / "log.txt").read_text(errors="replace")[-3000:], file=sys.stderr)
@@ -136,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     np.savez_compressed(work / f"{args.seq}_reference.npz", vertices=np.stack(frames), faces=faces)
     rec.update(
         process_wall_s=wall,
-        peak_rss_mb=usage.ru_maxrss / 1024.0,
+        peak_rss_mb=peak_mb,
         frames=args.frames,
         seq=args.seq,
         machine=describe(),

@@ -175,6 +175,15 @@ def reference_split(tree: list[tuple[int, str, float]], newton_iterations: int) 
     return {k: v / newton_iterations for k, v in split.items()}
 
 
+def run_measured(cmd: list[str], env: dict[str, str], log: Path) -> tuple[float, float, int]:
+    """Run ``cmd`` with its output in ``log``; (process wall s, peak RSS MB of the child, exit code)."""
+    t0 = time.perf_counter()
+    with open(log, "w") as fh:
+        proc = subprocess.Popen(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(proc.pid, 0)
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
+
+
 def run_reference(
     reference: Path, case: ReferenceCase, work_dir: Path, data_dir: Path | None, timeout: float | None = None
 ) -> dict:

@@ -8,14 +8,15 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from idp.scene.schema_base import Bool, Float, NonNegInt, _Model, rule_error
+from idp.scene.shell_schema import BendingHessian
 
 #: the authors' repair set-up (manifest, repair/): d̂ = 1e-2 absolute, dt = 0.04 (h = dt²)
 REPAIR_DHAT = 1e-2
 #: the authors' shell stopping rule: RMS Newton step per vertex / dt ≤ 1e-3 (reference notes, "Newton loop")
 REPAIR_NEWTON_TOL = 1e-3
 #: the bending's Newton Hessian in a repair unless the shell sets it: 2c∇θ∇θᵀ (Kick: 837 instead of 967 Newton
-#: iterations, 301 instead of 433 s of run, the same deviations; docs/animation-repair.md)
-REPAIR_BENDING_HESSIAN: Literal["projected", "gauss_newton"] = "gauss_newton"
+#: iterations, 301–346 instead of 385 s of stepping the same session, the same deviations; docs/animation-repair.md)
+REPAIR_BENDING_HESSIAN: BendingHessian = "gauss_newton"
 
 
 class RepairConfig(_Model):

@@ -9,6 +9,8 @@ from pydantic import Field, Strict, model_validator
 from idp.scene.schema_base import Bool, PosFloat, _Model, rule_error
 
 NonNegFloat = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)]
+#: the bending's Newton Hessian (:data:`idp.energies.bending.BENDING_HESSIANS`)
+BendingHessian = Literal["projected", "gauss_newton"]
 
 
 class ShellMaterial(_Model):
@@ -26,7 +28,7 @@ class ShellMaterial(_Model):
     thickness: PosFloat = 1e-3
     density: PosFloat = 1000.0
     bending: NonNegFloat = 1.0
-    bending_hessian: Literal["projected", "gauss_newton"] = "projected"
+    bending_hessian: BendingHessian = "projected"
 
 
 #: a flow scene's default Newton tolerance: RMS step per vertex below this fraction of |β| (solver.newton_norm =

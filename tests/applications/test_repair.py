@@ -406,6 +406,8 @@ def test_repair_scenes_balance_kappa_once_and_let_prescribed_parts_follow_the_in
     assert scene.contact.kappa_init == "every_step" and scene.repair.prescribed_contact == "guarded"
     plain = scene_from_dict({"objects": [{"name": "s", "kind": "shell", "mesh": str(inp), "frame": 0}]})
     assert plain.contact.kappa_init == "every_step"
+    with pytest.raises(SceneError, match="prescribed_contact"):
+        scene_from_dict({"repair": {"input": str(inp), "prescribed_contact": "loose"}})
 
 
 def test_repair_shells_take_the_gauss_newton_bending_hessian_unless_set(tmp_path):
@@ -424,8 +426,6 @@ def test_repair_shells_take_the_gauss_newton_bending_hessian_unless_set(tmp_path
     assert scene.objects[0].shell.bending_hessian == "projected"
     plain = scene_from_dict({"objects": [{"name": "s", "kind": "shell", "mesh": str(inp), "frame": 0}]})
     assert plain.objects[0].shell is None or plain.objects[0].shell.bending_hessian == "projected"
-    with pytest.raises(SceneError, match="prescribed_contact"):
-        scene_from_dict({"repair": {"input": str(inp), "prescribed_contact": "loose"}})
 
 
 def test_shell_stencils_on_held_dofs_are_skipped_without_changing_the_repair(tmp_path, monkeypatch):

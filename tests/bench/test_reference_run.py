@@ -23,6 +23,7 @@ from idp.bench.reference_run import (
     parse_ref_output,
     parse_timing_tree,
     reference_split,
+    run_measured,
 )
 from idp.cli import main
 
@@ -221,3 +222,14 @@ def test_the_real_reference_runs_beside_idp_on_bunny_700(tmp_path, monkeypatch):
     assert c["reference_fill"] == pytest.approx(7.81414958 / 8.0, rel=2e-3)
     assert c["reference_wall_median"] > 0 and c["speedup"] > 0
     assert set(c["reference_split"]) >= {"assembly", "linear_solve", "ccd", "contact_build"}
+
+
+def test_run_measured_reports_exit_code_log_and_peak_memory(tmp_path):
+    """The side-by-side scripts' child launch: output into the log, the child's exit code and its own peak RSS."""
+    import sys
+
+    code = "import sys; b = bytearray(60 * 2**20); print('child ran'); sys.exit(3)"
+    wall, peak_mb, rc = run_measured([sys.executable, "-c", code], dict(os.environ), tmp_path / "log.txt")
+    assert rc == 3 and wall > 0
+    assert "child ran" in (tmp_path / "log.txt").read_text()
+    assert peak_mb >= 60
