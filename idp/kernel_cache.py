@@ -143,7 +143,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "idp.contact._broad_phase",
             "_run",
             "(float64[:, ::1], float64[:, ::1], boolean, int32[:, ::1], int32[:, ::1], int64, uint8[::1], float64,"
-            " int64, float64, int64, int64, int64)",
+            " int64, float64, int64, int64, int64, float64, float64, float64)",
             8.8,
         ),
         Kernel(

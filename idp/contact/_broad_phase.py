@@ -28,6 +28,24 @@ the cell holding the low corner of the intersection of their intervals (c = max 
 cells, per axis: an exact integer test, done as a 3-bit mask per entry), so there are no
 duplicates and no sort is needed.
 
+Long sweeps. A Newton direction of the mannequin's repair carries the kicking leg 0.1-0.3 (30 d-hat) in one
+sweep: its primitives' swept boxes overlap everything the leg passes and each other (4 M box pairs, 0.4-0.65 s per
+query and as much again in CCD, 10 such sweeps in 5 frames), and the cell that suits them lumps the still body into
+cells of 15,000 entries. Two changes, both only for sweeps that move some vertex further than a cell:
+- the moving-box test: primitive g lies at every t of the sweep in [lo0 + t dmin, hi0 + t dmax] (its start box and
+  its vertices' least and largest displacement per axis); a pair is kept only if those boxes (inflated) overlap on
+  every axis at one common t, an interval test on six linear conditions (pairs overlapping at t = 0 pass at once).
+  It is a refinement of the swept-box test, so nothing that comes within the inflation is dropped; primitives that
+  move together keep only their near pairs (4 M -> 0.5 M on the kick).
+- long and short primitives: a primitive whose sweep box reaches more than _LONG_REACH start-box cells beyond its
+  start box is long. Short ones pair among themselves in the grid of their own (swept) boxes, long ones among
+  themselves in a grid of theirs, and each long one is tested against the short ones binned in the fine grid over
+  the cells its box covers (the same low-corner ownership, so no duplicates). The union is exactly the one-grid set
+  (tested at several thresholds). Kick frames 67-71: 0.39-0.65 s -> 0.25-0.29 s per long query, CCD 3.6 -> 1.4 s.
+Tried and dropped for long sweeps: splitting the sweep into time slabs (each long primitive binned once per slab,
+a pair reported in its first slab): co-moving primitives still meet in every slab, so the box tests stay about the
+same (0.2-0.4 s) while the bookkeeping grows; a finer or coarser single grid (0.32-1.9 s).
+
 Parallelism: boxes, binning and the cell loop are prange loops over a few work-balanced chunks
 (numba's thread count is left alone; no np.zeros in the parallel functions, each would be one more
 parallel region, ~50 us of worker wake-up under OMP_WAIT_POLICY=PASSIVE). Each chunk of cells
@@ -65,12 +83,28 @@ _CELLS_PER_PRIM = 4
 _CHUNKS_PER_THREAD = 4
 # Output rows reserved per chunk of cells: its number of cell entries plus this.
 _SPARE_ROWS = 256
+# A sweep primitive is "long" when its sweep box reaches this many start-box cells further than its start box; the
+# long ones' grid has cells of _LONG_SCALE x their mean box side + inflation.
+_LONG_REACH = 2.0
+_LONG_SCALE = 1.2
+# Pairs of a sweep are also put to the moving-box test once some vertex moves further than this many cells (below,
+# swept boxes are nearly as tight and the test costs more than it saves).
+_MOVING_REACH = 1.0
 
 _EMPTY = np.empty((0, 2), dtype=np.int32)
 
 # Primitive classes: 4 x type (vertex, edge, face) + (dynamic outside the group, dynamic in it, static outside,
 # static in it).
 NUM_KINDS = 12
+
+
+@njit(cache=True, inline="always")
+def _sweep_reach(mv, g):  # pragma: no cover
+    """How much longer than its start box primitive g's sweep box is on its worst axis."""
+    r = 0.0
+    for a in range(3):
+        r = max(r, max(mv[g, 9 + a], 0.0) - min(mv[g, 6 + a], 0.0))
+    return r
 
 
 @njit(cache=True, parallel=True)
@@ -82,7 +116,8 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     for every vertex of g, else 0; ri = (vertex ids, padded with -1; own id).
     ext[t] = this chunk's (min dynamic lo (3), max dynamic H (3), sum of the dynamic edges'
     largest box side, their count, the same for the dynamic faces, 1 if it saw a non-finite
-    coordinate, 1 if it saw a vertex id outside [0, nv)); kcnt[t] = its count per kind."""
+    coordinate, 1 if it saw a vertex id outside [0, nv), the largest displacement component of a dynamic vertex);
+    kcnt[t] = its count per kind."""
     nv = V0.shape[0]
     ne = E.shape[0]
     n = nv + ne + F.shape[0]
@@ -91,7 +126,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     kind = np.empty(n, dtype=np.int8)
     grp = np.empty(n, dtype=np.int32)
     ri = np.empty((n, 4), dtype=np.int32)
-    ext = np.empty((nt, 12))
+    ext = np.empty((nt, 13))
     kcnt = np.empty((nt, NUM_KINDS), dtype=np.int64)  # np.zeros here would be a parallel region of its own
     for t in prange(nt):
         for k in range(NUM_KINDS):
@@ -108,6 +143,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
         cnt_f = 0.0
         bad = 0.0
         bad_ids = 0.0
+        disp = 0.0
         for g in range(t * n // nt, (t + 1) * n // nt):
             if g < nv:
                 k = 1
@@ -174,6 +210,9 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
                 x0 = max(x0, H[g, 0])
                 x1 = max(x1, H[g, 1])
                 x2 = max(x2, H[g, 2])
+                if sweep and k == 1:
+                    for a in range(3):
+                        disp = max(disp, abs(V1[g, a] - V0[g, a]))
                 if k > 1:
                     sd = max(H[g, 0] - lo[g, 0], H[g, 1] - lo[g, 1], H[g, 2] - lo[g, 2]) - infl
                     if k == 2:
@@ -194,7 +233,48 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
         ext[t, 9] = cnt_f
         ext[t, 10] = bad
         ext[t, 11] = bad_ids
+        ext[t, 12] = disp
     return lo, H, kind, grp, ri, ext, kcnt
+
+
+@njit(cache=True, parallel=True)
+def _moving_boxes(V0, V1, ri, kind, infl, nt):  # pragma: no cover
+    """Per primitive of a sweep its moving box, which holds it at every t of the sweep: rows lo0 (3), hi0 + infl
+    (3) at V0 and the least and largest displacement of its vertices per axis (dmin (3), dmax (3)). Also per chunk
+    (stat[t]): the sum of the dynamic edges' largest start-box side and the largest :func:`_sweep_reach` of a
+    dynamic primitive."""
+    n = ri.shape[0]
+    mv = np.empty((n, 12))
+    stat = np.empty((nt, 2))
+    for t in prange(nt):
+        side0 = 0.0
+        reach = 0.0
+        for g in range(t * n // nt, (t + 1) * n // nt):
+            k = kind[g] // 4 + 1
+            for a in range(3):
+                l0 = np.inf
+                h0 = -np.inf
+                dn = np.inf
+                dx = -np.inf
+                for j in range(k):
+                    v = ri[g, j]
+                    x = V0[v, a]
+                    l0 = min(l0, x)
+                    h0 = max(h0, x)
+                    x = V1[v, a] - x
+                    dn = min(dn, x)
+                    dx = max(dx, x)
+                mv[g, a] = l0
+                mv[g, 3 + a] = h0 + infl
+                mv[g, 6 + a] = dn
+                mv[g, 9 + a] = dx
+            if kind[g] % 4 < 2:  # dynamic
+                reach = max(reach, _sweep_reach(mv, g))
+                if k == 2:
+                    side0 += max(mv[g, 3] - mv[g, 0], mv[g, 4] - mv[g, 1], mv[g, 5] - mv[g, 2]) - infl
+        stat[t, 0] = side0
+        stat[t, 1] = reach
+    return mv, stat
 
 
 @njit(cache=True)
@@ -216,11 +296,11 @@ def _order(kind, kcnt):  # pragma: no cover
 def _cells(lo, H, order, org, invh, dims, nt):  # pragma: no cover
     """First/last cell per axis of each primitive's interval [lo, H], clipped to the grid
     (cmin[g, 0] = -1: wholly outside), and entry counts per cell for each chunk of ``order``."""
-    n = lo.shape[0]
+    n = order.size
     ny, nz = dims[1], dims[2]
     nyz = ny * nz
-    cmin = np.empty((n, 3), dtype=np.int32)
-    cmax = np.empty((n, 3), dtype=np.int32)
+    cmin = np.empty((lo.shape[0], 3), dtype=np.int32)  # rows of the primitives in order only
+    cmax = np.empty((lo.shape[0], 3), dtype=np.int32)
     nc = dims[0] * nyz
     cnt = np.empty((nt, nc), dtype=np.int64)
     for t in prange(nt):
@@ -279,7 +359,7 @@ def _offsets(cnt):  # pragma: no cover
 @njit(cache=True, parallel=True)
 def _fill(cmin, cmax, order, pos, dims, total):  # pragma: no cover
     nt = pos.shape[0]
-    n = cmin.shape[0]
+    n = order.size
     ny, nz = dims[1], dims[2]
     nyz = ny * nz
     items = np.empty(total, dtype=np.int32)
@@ -359,27 +439,89 @@ def _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, mj):  # pragma: no cover
 
 
 @njit(cache=True, inline="always")
-def _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end):  # pragma: no cover
-    """Test face entry i of a cell against its vertex entries [r0, r1) and [r2, r3); returns the next output row."""
+def _moving_boxes_meet(mb, i, j, pad):  # pragma: no cover
+    """Whether entries i and j of a cell can overlap (inflated) at one time t in [0, 1] of the sweep: the moving
+    boxes [lo0 + t dmin, hi0 + infl + t dmax] (``mb`` rows: lo0, hi0 + infl, dmin, dmax per axis) must overlap on
+    every axis at the same t. Each of the six conditions is linear in t; they bound an interval of t, which must
+    not be empty. ``pad`` widens every condition (a margin far above the rounding of the divisions)."""
+    if (
+        mb[i, 0] <= mb[j, 3] + pad
+        and mb[j, 0] <= mb[i, 3] + pad
+        and mb[i, 1] <= mb[j, 4] + pad
+        and mb[j, 1] <= mb[i, 4] + pad
+        and mb[i, 2] <= mb[j, 5] + pad
+        and mb[j, 2] <= mb[i, 5] + pad
+    ):
+        return True  # they overlap at t = 0 (the common case of short sweeps: no divisions)
+    tlo = 0.0
+    thi = 1.0
+    for a in range(3):
+        for q in range(2):
+            u, w = (i, j) if q == 0 else (j, i)
+            # lo_u(t) <= hi_w(t) + infl:  t (dmin_u - dmax_w) <= hi0_w + infl - lo0_u
+            c = mb[u, 6 + a] - mb[w, 9 + a]
+            r = mb[w, 3 + a] - mb[u, a] + pad
+            if c > 0.0:
+                thi = min(thi, r / c)
+            elif c < 0.0:
+                tlo = max(tlo, r / c)
+            elif r < 0.0:
+                return False
+    return tlo <= thi
+
+
+@njit(cache=True, inline="always")
+def _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end, mb, moving, pad):  # pragma: no cover
+    """Test face entry i of a cell against its vertex entries [r0, r1) and [r2, r3); returns the next output row.
+    ``moving``: a sweep, whose pairs must also pass :func:`_moving_boxes_meet`."""
     l0, l1, l2 = box[i, 0], box[i, 1], box[i, 2]
     h0, h1, h2 = box[i, 3], box[i, 4], box[i, 5]
     mi = msk[i]
     a0, a1, a2, f = vt[i, 0], vt[i, 1], vt[i, 2], vt[i, 3]
     for run in range(2):
         ja, jb = (r0, r1) if run == 0 else (r2, r3)
-        for j in range(ja, jb):
-            b = vt[j, 0]
-            ok = _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b) & (a1 != b) & (a2 != b)
-            if pf < fv_end:
-                out_fv[pf, 0] = f
-                out_fv[pf, 1] = b
-            pf += ok
+        if moving:  # (two loops: the plain one stays branch-free)
+            for j in range(ja, jb):
+                b = vt[j, 0]
+                ok = _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b) & (a1 != b) & (a2 != b)
+                if ok:
+                    ok = _moving_boxes_meet(mb, i, j, pad)
+                if pf < fv_end:
+                    out_fv[pf, 0] = f
+                    out_fv[pf, 1] = b
+                pf += ok
+        else:
+            for j in range(ja, jb):
+                b = vt[j, 0]
+                ok = _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b) & (a1 != b) & (a2 != b)
+                if pf < fv_end:
+                    out_fv[pf, 0] = f
+                    out_fv[pf, 1] = b
+                pf += ok
     return pf
 
 
 @njit(cache=True, parallel=True)
 def _pairs(
-    chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv
+    chunks,
+    dims,
+    start,
+    items,
+    lo,
+    H,
+    kind,
+    grp,
+    ri,
+    mv,
+    pad,
+    cmin,
+    big,
+    ee_at,
+    fv_at,
+    out_ee,
+    out_fv,
+    n_ee,
+    n_fv,
 ):  # pragma: no cover
     """Test the candidate pairs of every cell. Chunk k writes its ee/fv rows into
     [ee_at[k], ee_at[k + 1]) / [fv_at[k], fv_at[k + 1]) while they fit and counts all it finds in
@@ -390,6 +532,8 @@ def _pairs(
         box = np.empty((big, 6))
         vt = np.empty((big, 4), dtype=np.int32)  # vertex ids (-1 padded), own id
         msk = np.empty(big, dtype=np.int32)
+        moving = mv.shape[0] > 0
+        mb = np.empty((big if moving else 0, 12))
         kc = np.empty(NUM_KINDS + 1, dtype=np.int64)
         pe = ee_at[k]
         pf = fv_at[k]
@@ -414,6 +558,9 @@ def _pairs(
                     box[j, 3 + a] = H[g, a]
                 for a in range(4):
                     vt[j, a] = ri[g, a]
+                if moving:
+                    for a in range(12):
+                        mb[j, a] = mv[g, a]
                 msk[j] = (
                     np.int32(cmin[g, 0] == cx)
                     | (np.int32(cmin[g, 1] == cy) << 1)
@@ -432,20 +579,38 @@ def _pairs(
                 mi = msk[i]
                 a0, a1, a = vt[i, 0], vt[i, 1], vt[i, 3]
                 j0, j1 = (i + 1, kc[8]) if i < kc[5] else (kc[6], kc[7])
-                for j in range(j0, j1):
-                    b0, b1 = vt[j, 0], vt[j, 1]
-                    ok = (
-                        _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
-                        & (a0 != b0)
-                        & (a0 != b1)
-                        & (a1 != b0)
-                        & (a1 != b1)
-                    )
-                    if pe < ee_end:
-                        b = vt[j, 3]
-                        out_ee[pe, 0] = min(a, b)
-                        out_ee[pe, 1] = max(a, b)
-                    pe += ok
+                if moving:  # (two loops: the plain one stays branch-free)
+                    for j in range(j0, j1):
+                        b0, b1 = vt[j, 0], vt[j, 1]
+                        ok = (
+                            _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
+                            & (a0 != b0)
+                            & (a0 != b1)
+                            & (a1 != b0)
+                            & (a1 != b1)
+                        )
+                        if ok:
+                            ok = _moving_boxes_meet(mb, i, j, pad)
+                        if pe < ee_end:
+                            b = vt[j, 3]
+                            out_ee[pe, 0] = min(a, b)
+                            out_ee[pe, 1] = max(a, b)
+                        pe += ok
+                else:
+                    for j in range(j0, j1):
+                        b0, b1 = vt[j, 0], vt[j, 1]
+                        ok = (
+                            _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
+                            & (a0 != b0)
+                            & (a0 != b1)
+                            & (a1 != b0)
+                            & (a1 != b1)
+                        )
+                        if pe < ee_end:
+                            b = vt[j, 3]
+                            out_ee[pe, 0] = min(a, b)
+                            out_ee[pe, 1] = max(a, b)
+                        pe += ok
             # face-vertex: dynamic faces x all vertices, static faces x dynamic vertices; a face in the group
             # skips the vertices in the group (two runs of vertex classes)
             for q in range(8, 12):
@@ -458,7 +623,7 @@ def _pairs(
                 else:
                     r0, r1, r2, r3 = kc[0], kc[1], 0, 0
                 for i in range(kc[q], kc[q + 1]):
-                    pf = _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end)
+                    pf = _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end, mb, moving, pad)
         n_ee[k] = pe - ee_at[k]
         n_fv[k] = pf - fv_at[k]
 
@@ -480,8 +645,286 @@ def _pack(buf, at, counts):  # pragma: no cover
 
 
 @njit(cache=True)
+def _order_subset(kind, sel, want):  # pragma: no cover
+    """Ids of the primitives with ``sel == want``, sorted (stably) by kind."""
+    pos = np.zeros(NUM_KINDS + 1, dtype=np.int64)
+    for g in range(kind.size):
+        if sel[g] == want:
+            pos[kind[g] + 1] += 1
+    for k in range(NUM_KINDS):
+        pos[k + 1] += pos[k]
+    order = np.empty(pos[NUM_KINDS], dtype=np.int32)
+    for g in range(kind.size):
+        if sel[g] == want:
+            k = kind[g]
+            order[pos[k]] = g
+            pos[k] += 1
+    return order
+
+
+@njit(cache=True)
+def _grid_size(size, h, cap):  # pragma: no cover
+    """Cells per axis for cell edge h over a region of ``size``, the edge grown until at most ``cap`` cells."""
+    dims_f = np.empty(3)
+    while True:
+        for a in range(3):
+            dims_f[a] = np.floor(size[a] / h) + 1.0
+        total = dims_f[0] * dims_f[1] * dims_f[2]
+        if total <= cap:
+            break
+        h *= 1.01 * (total / cap) ** (1.0 / 3.0)
+    return dims_f.astype(np.int64), h
+
+
+@njit(cache=True)
+def _grid_pairs(
+    lo, H, kind, grp, ri, mv, pad, order, org, h, cells_per_prim, size, nt, threads, chunks_per_thread, spare
+):  # pragma: no cover
+    """(fv, ee) of the primitives in ``order`` among themselves: a uniform grid of edge about h, every cell's
+    pairs tested by :func:`_pairs`."""
+    dims, h = _grid_size(size, h, max(64.0, cells_per_prim * order.size))
+    cmin, cmax, pos = _cells(lo, H, order, org, 1.0 / h, dims, nt)
+    start = _offsets(pos)
+    items = _fill(cmin, cmax, order, pos, dims, start[-1])
+    chunks, big, at = _chunks(start, chunks_per_thread * threads if nt > 1 else 1, spare)
+    nk = chunks.size - 1
+    n_ee = np.empty(nk, dtype=np.int64)
+    n_fv = np.empty(nk, dtype=np.int64)
+    buf_ee = np.empty((at[-1], 2), dtype=np.int32)
+    buf_fv = np.empty((at[-1], 2), dtype=np.int32)
+    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, mv, pad, cmin, big, at, at, buf_ee, buf_fv, n_ee, n_fv)
+    over = False
+    for k in range(nk):
+        over = over or n_ee[k] > at[k + 1] - at[k] or n_fv[k] > at[k + 1] - at[k]
+    if not over:
+        return _pack(buf_fv, at, n_fv), _pack(buf_ee, at, n_ee)
+    # some chunk found more pairs than its slice holds: rerun with exact slices
+    ee_at = np.zeros(nk + 1, dtype=np.int64)
+    fv_at = np.zeros(nk + 1, dtype=np.int64)
+    for k in range(nk):
+        ee_at[k + 1] = ee_at[k] + n_ee[k]
+        fv_at[k + 1] = fv_at[k] + n_fv[k]
+    out_ee = np.empty((ee_at[nk], 2), dtype=np.int32)
+    out_fv = np.empty((fv_at[nk], 2), dtype=np.int32)
+    _pairs(
+        chunks,
+        dims,
+        start,
+        items,
+        lo,
+        H,
+        kind,
+        grp,
+        ri,
+        mv,
+        pad,
+        cmin,
+        big,
+        ee_at,
+        fv_at,
+        out_ee,
+        out_fv,
+        n_ee,
+        n_fv,
+    )
+    return out_fv, out_ee
+
+
+@njit(cache=True, inline="always")
+def _cross_pair(lo, H, kind, ri, mv, pad, cmin_l, cmin_s, g, s, cx, cy, cz):  # pragma: no cover
+    """0 (no pair), 1 (face-vertex) or 2 (edge-edge) for long primitive g and short primitive s met in cell
+    (cx, cy, cz): the pair's kinds match, not both are static, not both in the group, they share no vertex, their
+    inflated boxes overlap, this cell is the low corner of their cell ranges' intersection, and their moving
+    boxes meet (:func:`_moving_boxes_meet`)."""
+    tg = kind[g] // 4
+    ts = kind[s] // 4
+    if tg == 1:
+        if ts != 1:
+            return 0
+        res = 2
+    elif tg + ts != 2:  # face x vertex, or vertex x face
+        return 0
+    else:
+        res = 1
+    cg = kind[g] % 4
+    cs = kind[s] % 4
+    if cg >= 2 and cs >= 2:  # both static
+        return 0
+    if (cg & 1) == 1 and (cs & 1) == 1:  # both in the group
+        return 0
+    if not (max(cmin_l[g, 0], cmin_s[s, 0]) == cx and max(cmin_l[g, 1], cmin_s[s, 1]) == cy):
+        return 0
+    if max(cmin_l[g, 2], cmin_s[s, 2]) != cz:
+        return 0
+    for a in range(3):
+        if not (lo[s, a] <= H[g, a] and lo[g, a] <= H[s, a]):
+            return 0
+    for p in range(tg + 1):
+        for q in range(ts + 1):
+            if ri[g, p] == ri[s, q]:
+                return 0
+    if mv.shape[0] > 0:
+        tlo = 0.0
+        thi = 1.0
+        for a in range(3):
+            for o in range(2):
+                u, w = (g, s) if o == 0 else (s, g)
+                c = mv[u, 6 + a] - mv[w, 9 + a]
+                r = mv[w, 3 + a] - mv[u, a] + pad
+                if c > 0.0:
+                    thi = min(thi, r / c)
+                elif c < 0.0:
+                    tlo = max(tlo, r / c)
+                elif r < 0.0:
+                    return 0
+        if tlo > thi:
+            return 0
+    return res
+
+
+@njit(cache=True, parallel=True)
+def _cross(
+    lo, H, kind, ri, mv, pad, long_ids, cmin_l, cmax_l, cmin_s, start, items, dims, nt, n_fv, n_ee, out_fv, out_ee, at
+):  # pragma: no cover
+    """Pairs of a long primitive (``long_ids``, cell ranges cmin_l/cmax_l) with the short ones binned in the same
+    grid (``start``/``items``, cell ranges cmin_s). Chunk t of the long primitives writes into rows
+    [at[t], at[t + 1]) of out_fv / out_ee while they fit and counts all it finds (n_fv[t], n_ee[t])."""
+    ny, nz = dims[1], dims[2]
+    m = long_ids.size
+    for t in prange(nt):
+        pf = at[t]
+        pe = at[t]
+        end = at[t + 1]
+        for p in range(t * m // nt, (t + 1) * m // nt):
+            g = long_ids[p]
+            if cmin_l[g, 0] < 0:
+                continue
+            for x in range(cmin_l[g, 0], cmax_l[g, 0] + 1):
+                for y in range(cmin_l[g, 1], cmax_l[g, 1] + 1):
+                    for z in range(cmin_l[g, 2], cmax_l[g, 2] + 1):
+                        c = (x * ny + y) * nz + z
+                        for e in range(start[c], start[c + 1]):
+                            s = items[e]
+                            kindpair = _cross_pair(lo, H, kind, ri, mv, pad, cmin_l, cmin_s, g, s, x, y, z)
+                            if kindpair == 1:
+                                if pf < end:
+                                    if kind[g] >= 8:
+                                        out_fv[pf, 0] = ri[g, 3]
+                                        out_fv[pf, 1] = ri[s, 0]
+                                    else:
+                                        out_fv[pf, 0] = ri[s, 3]
+                                        out_fv[pf, 1] = ri[g, 0]
+                                pf += 1
+                            elif kindpair == 2:
+                                if pe < end:
+                                    a = ri[g, 3]
+                                    b = ri[s, 3]
+                                    out_ee[pe, 0] = min(a, b)
+                                    out_ee[pe, 1] = max(a, b)
+                                pe += 1
+        n_fv[t] = pf - at[t]
+        n_ee[t] = pe - at[t]
+
+
+@njit(cache=True)
+def _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h, cells_per_prim, size, nt):  # pragma: no cover
+    """(fv, ee) pairs of every primitive in ``order_l`` with every one in ``order_s``: the latter binned in a grid of
+    edge about h, each of the former tested against the cells its box covers (:func:`_cross`)."""
+    dims, h = _grid_size(size, h, max(64.0, cells_per_prim * (order_l.size + order_s.size)))
+    cmin_l, cmax_l, _ = _cells(lo, H, order_l, org, 1.0 / h, dims, 1)
+    cmin_s, cmax_s, pos = _cells(lo, H, order_s, org, 1.0 / h, dims, 1)
+    start = _offsets(pos)
+    items = _fill(cmin_s, cmax_s, order_s, pos, dims, start[-1])
+    ntc = max(1, min(nt * 8, order_l.size))
+    n_fv = np.empty(ntc, dtype=np.int64)
+    n_ee = np.empty(ntc, dtype=np.int64)
+    at = np.empty(ntc + 1, dtype=np.int64)
+    m = order_l.size
+    at[0] = 0
+    for t in range(ntc):
+        at[t + 1] = at[t] + 16 * ((t + 1) * m // ntc - t * m // ntc) + 256
+    out_fv = np.empty((at[ntc], 2), dtype=np.int32)
+    out_ee = np.empty((at[ntc], 2), dtype=np.int32)
+    _cross(
+        lo,
+        H,
+        kind,
+        ri,
+        mv,
+        pad,
+        order_l,
+        cmin_l,
+        cmax_l,
+        cmin_s,
+        start,
+        items,
+        dims,
+        ntc,
+        n_fv,
+        n_ee,
+        out_fv,
+        out_ee,
+        at,
+    )
+    over = False
+    for t in range(ntc):
+        over = over or n_fv[t] > at[t + 1] - at[t] or n_ee[t] > at[t + 1] - at[t]
+    if over:  # rerun with slices that hold what each chunk found
+        for t in range(ntc):
+            at[t + 1] = at[t] + max(n_fv[t], n_ee[t])
+        out_fv = np.empty((at[ntc], 2), dtype=np.int32)
+        out_ee = np.empty((at[ntc], 2), dtype=np.int32)
+        _cross(
+            lo,
+            H,
+            kind,
+            ri,
+            mv,
+            pad,
+            order_l,
+            cmin_l,
+            cmax_l,
+            cmin_s,
+            start,
+            items,
+            dims,
+            ntc,
+            n_fv,
+            n_ee,
+            out_fv,
+            out_ee,
+            at,
+        )
+    return _pack(out_fv, at, n_fv), _pack(out_ee, at, n_ee)
+
+
+@njit(cache=True)
+def _concat(a, b, c):  # pragma: no cover
+    out = np.empty((a.shape[0] + b.shape[0] + c.shape[0], 2), dtype=np.int32)
+    out[: a.shape[0]] = a
+    out[a.shape[0] : a.shape[0] + b.shape[0]] = b
+    out[a.shape[0] + b.shape[0] :] = c
+    return out
+
+
+@njit(cache=True)
 def _run(  # pragma: no cover
-    V0, V1, sweep, E, F, nd, still, infl, threads, scale, cells_per_prim, chunks_per_thread, spare
+    V0,
+    V1,
+    sweep,
+    E,
+    F,
+    nd,
+    still,
+    infl,
+    threads,
+    scale,
+    cells_per_prim,
+    chunks_per_thread,
+    spare,
+    long_reach,
+    long_scale,
+    moving_reach,
 ):
     """The whole query; returns (fv, ee, status): status 1 = non-finite coordinates, 2 = vertex id
     out of range."""
@@ -498,9 +941,11 @@ def _run(  # pragma: no cover
     for a in range(3):
         org[a] = ext[:, a].min()
         size[a] = ext[:, 3 + a].max() - org[a]
-    # cell edge from the dynamic edges' mean box side (the faces' when there are no edges)
+    # the moving-box test's margin: far above the rounding of its terms (coordinates and inflation)
+    pad = 1e-9 * (max(np.abs(org).max(), np.abs(org + size).max()) + infl)
     n_edges = ext[:, 7].sum()
     n_faces = ext[:, 9].sum()
+    # cell edge from the dynamic edges' mean box side (the faces' when there are no edges)
     if n_edges > 0:
         h = infl + scale * ext[:, 6].sum() / n_edges
     elif n_faces > 0:
@@ -509,43 +954,82 @@ def _run(  # pragma: no cover
         h = infl
     if not h > 0.0:
         h = max(size.max(), 1.0)
-    cap = max(64.0, cells_per_prim * n)
-    dims_f = np.empty(3)
-    while True:
-        for a in range(3):
-            dims_f[a] = np.floor(size[a] / h) + 1.0
-        total = dims_f[0] * dims_f[1] * dims_f[2]
-        if total <= cap:
-            break
-        h *= 1.01 * (total / cap) ** (1.0 / 3.0)
-    dims = dims_f.astype(np.int64)
-
+    # A sweep that moves some vertex further than about a cell: its pairs must also pass the moving-box test, which
+    # drops the swept-box pairs of primitives that are never near each other at one time. When some primitives'
+    # sweep boxes reach much further than the cell their start boxes call for, those ("long") pair among themselves
+    # in a coarse grid and with the others ("short") by a cross pass over a grid of the short ones, while the short
+    # ones pair among themselves in the fine grid of their own boxes.
+    mv = np.empty((0, 12))
+    split = False
+    h0 = h
+    if sweep and n_edges > 0 and ext[:, 12].max() > moving_reach * h:
+        mv, stat = _moving_boxes(V0, V1, ri, kind, infl, nt)
+        h0 = infl + scale * stat[:, 0].sum() / n_edges
+        split = h0 > 0.0 and stat[:, 1].max() > long_reach * h0
+    if split:
+        is_long = np.empty(n, dtype=np.int8)
+        side_s = 0.0
+        cnt_s = 0.0
+        side_l = 0.0
+        cnt_l = 0.0
+        for g in range(n):
+            lg = kind[g] % 4 < 2 and _sweep_reach(mv, g) > long_reach * h0
+            is_long[g] = 1 if lg else 0
+            if kind[g] // 4 == 1 and kind[g] % 4 < 2:
+                sd = max(H[g, 0] - lo[g, 0], H[g, 1] - lo[g, 1], H[g, 2] - lo[g, 2]) - infl
+                if lg:
+                    side_l += sd
+                    cnt_l += 1.0
+                else:
+                    side_s += sd
+                    cnt_s += 1.0
+        order_s = _order_subset(kind, is_long, 0)
+        order_l = _order_subset(kind, is_long, 1)
+        h_s = infl + scale * side_s / cnt_s if cnt_s > 0 else h0
+        h_l = infl + long_scale * side_l / cnt_l if cnt_l > 0 else h0
+        fv_s, ee_s = _grid_pairs(
+            lo,
+            H,
+            kind,
+            grp,
+            ri,
+            mv,
+            pad,
+            order_s,
+            org,
+            h_s,
+            cells_per_prim,
+            size,
+            nt,
+            threads,
+            chunks_per_thread,
+            spare,
+        )
+        fv_l, ee_l = _grid_pairs(
+            lo,
+            H,
+            kind,
+            grp,
+            ri,
+            mv,
+            pad,
+            order_l,
+            org,
+            h_l,
+            cells_per_prim,
+            size,
+            nt,
+            threads,
+            chunks_per_thread,
+            spare,
+        )
+        fv_x, ee_x = _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h_s, cells_per_prim, size, threads)
+        return _concat(fv_s, fv_l, fv_x), _concat(ee_s, ee_l, ee_x), 0
     order = _order(kind, kcnt)
-    cmin, cmax, pos = _cells(lo, H, order, org, 1.0 / h, dims, nt)
-    start = _offsets(pos)
-    items = _fill(cmin, cmax, order, pos, dims, start[-1])
-    chunks, big, at = _chunks(start, chunks_per_thread * threads if nt > 1 else 1, spare)
-    nk = chunks.size - 1
-    n_ee = np.empty(nk, dtype=np.int64)
-    n_fv = np.empty(nk, dtype=np.int64)
-    buf_ee = np.empty((at[-1], 2), dtype=np.int32)
-    buf_fv = np.empty((at[-1], 2), dtype=np.int32)
-    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, at, at, buf_ee, buf_fv, n_ee, n_fv)
-    over = False
-    for k in range(nk):
-        over = over or n_ee[k] > at[k + 1] - at[k] or n_fv[k] > at[k + 1] - at[k]
-    if not over:
-        return _pack(buf_fv, at, n_fv), _pack(buf_ee, at, n_ee), 0
-    # some chunk found more pairs than its slice holds: rerun with exact slices
-    ee_at = np.zeros(nk + 1, dtype=np.int64)
-    fv_at = np.zeros(nk + 1, dtype=np.int64)
-    for k in range(nk):
-        ee_at[k + 1] = ee_at[k] + n_ee[k]
-        fv_at[k + 1] = fv_at[k] + n_fv[k]
-    out_ee = np.empty((ee_at[nk], 2), dtype=np.int32)
-    out_fv = np.empty((fv_at[nk], 2), dtype=np.int32)
-    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv)
-    return out_fv, out_ee, 0
+    fv, ee = _grid_pairs(
+        lo, H, kind, grp, ri, mv, pad, order, org, h, cells_per_prim, size, nt, threads, chunks_per_thread, spare
+    )
+    return fv, ee, 0
 
 
 def _as_index(a, width: int, name: str) -> np.ndarray:
@@ -628,6 +1112,9 @@ def surface_candidates(
         _CELLS_PER_PRIM,
         _CHUNKS_PER_THREAD,
         _SPARE_ROWS,
+        _LONG_REACH,
+        _LONG_SCALE,
+        _MOVING_REACH,
     )
     if status == 2:
         raise ValueError(f"edges or faces reference vertices outside [0, {nv})")

@@ -1,5 +1,6 @@
-"""The numba surface broad phase: exact agreement with a brute-force box test, completeness
-against ipctk's collision set, and the exclusions (shared vertices, all-static pairs)."""
+"""The numba surface broad phase: exact agreement with a brute-force box test (and, for sweeps, the moving-box
+test), on short sweeps and on long ones (the split into long and short primitives), completeness against ipctk's
+collision set and against true distances along the sweep, and the exclusions (shared vertices, all-static pairs)."""
 
 import itertools
 
@@ -8,6 +9,7 @@ import numba
 import numpy as np
 import pytest
 
+import idp.contact._broad_phase as _bp
 from idp.contact._broad_phase import surface_candidates
 from idp.mesh.generate import box_surface, tet_ball
 from idp.mesh.surface import boundary_faces
@@ -103,21 +105,77 @@ def _boxes(V0, V1, prims):
     return lo, hi
 
 
-def brute_force(V0, V1, E, F, infl, nd):
-    """Every pair passing lo_a <= hi_b + infl and lo_b <= hi_a + infl on all axes, minus the exclusions."""
+def _moving_meet(V0, V1, pa, pb, infl, pad):
+    """Per pair (rows of pa, pb: vertex ids of the two primitives) whether their moving boxes
+    [lo0 + t dmin, hi0 + t dmax] come within infl + pad of each other on every axis at one t in [0, 1]."""
+    D = V1 - V0
+    lo_a, hi_a, dn_a, dx_a = V0[pa].min(1), V0[pa].max(1), D[pa].min(1), D[pa].max(1)
+    lo_b, hi_b, dn_b, dx_b = V0[pb].min(1), V0[pb].max(1), D[pb].min(1), D[pb].max(1)
+    tlo, thi = np.zeros(len(pa)), np.ones(len(pa))
+    ok = np.ones(len(pa), dtype=bool)
+    for c, r in ((dn_a - dx_b, hi_b + infl - lo_a + pad), (dn_b - dx_a, hi_a + infl - lo_b + pad)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = r / c
+        thi = np.minimum(thi, np.where(c > 0, q, np.inf).min(1))
+        tlo = np.maximum(tlo, np.where(c < 0, q, -np.inf).max(1))
+        ok &= ~((c == 0) & (r < 0)).any(1)
+    return ok & (tlo <= thi)
+
+
+def brute_force(V0, V1, E, F, infl, nd, pad=0.0, moving=True):
+    """Every pair passing lo_a <= hi_b + infl and lo_b <= hi_a + infl on all axes, minus the exclusions; for a sweep
+    (V1 given) also passing the moving-box test with margin ``pad`` unless not ``moving``."""
     vlo, vhi = _boxes(V0, V1, np.arange(len(V0))[:, None])
     elo, ehi = _boxes(V0, V1, E)
     flo, fhi = _boxes(V0, V1, F)
     ok = ((flo[:, None] <= vhi[None] + infl) & (vlo[None] <= fhi[:, None] + infl)).all(axis=-1)
     f, v = np.nonzero(ok)
     keep = (F[f] != v[:, None]).all(axis=1) & ((F[f].min(axis=1) < nd) | (v < nd))
+    if V1 is not None and moving:
+        keep &= _moving_meet(V0, V1, F[f], v[:, None], infl, pad)
     fv = set(zip(f[keep].tolist(), v[keep].tolist(), strict=True))
     ok = ((elo[:, None] <= ehi[None] + infl) & (elo[None] <= ehi[:, None] + infl)).all(axis=-1)
     a, b = np.nonzero(np.triu(ok, 1))
     share = (E[a][:, :, None] == E[b][:, None, :]).any(axis=(1, 2))
     keep = ~share & ((E[a].min(axis=1) < nd) | (E[b].min(axis=1) < nd))
+    if V1 is not None and moving:
+        keep &= _moving_meet(V0, V1, E[a], E[b], infl, pad)
     ee = set(zip(a[keep].tolist(), b[keep].tolist(), strict=True))
     return fv, ee
+
+
+def sweep_end(V, nd, kind, seed):
+    """End positions of a query: None (static), a short jitter of the dynamic vertices ("sweep"), or a long move
+    ("long_sweep": the dynamic vertices turned 60 degrees about a vertical axis at one side of them, plus the jitter,
+    so they move from not at all to across the scene and the broad phase splits long from short primitives)."""
+    if kind == "static":
+        return None
+    rng = np.random.default_rng(seed)
+    dyn = np.arange(len(V))[:, None] < nd
+    V1 = V + np.where(dyn, 3e-3 * rng.standard_normal(V.shape), 0.0)
+    if kind == "long_sweep":
+        axis_at = V[:nd].min(axis=0)
+        c, s = np.cos(np.pi / 3), np.sin(np.pi / 3)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        V1 = np.where(dyn, (V1 - axis_at) @ R.T + axis_at, V1)
+    return V1
+
+
+def _bounds(V0, V1, E, F, infl, nd):
+    """(pairs any query must report, pairs it may report): for a static query both the box-test set; for a sweep
+    the moving-box set, and the swept-box set widened by the rounding margin (whether a sweep takes the moving-box
+    test depends on how far it moves against the cell size of the query's primitives)."""
+    if V1 is None:
+        exact = brute_force(V0, None, E, F, infl, nd)
+        return exact, exact
+    return brute_force(V0, V1, E, F, infl, nd), brute_force(
+        V0, V1, E, F, infl, nd, _scale_pad(V0, V1, infl), moving=False
+    )
+
+
+def _scale_pad(V0, V1, infl):
+    """A margin above the broad phase's own (1e-9 of the coordinates' size): pairs within it may go either way."""
+    return 1e-8 * (max(np.abs(V0).max(), np.abs(V1).max()) + infl)
 
 
 def _as_sets(fv, ee):
@@ -132,19 +190,92 @@ def _as_sets(fv, ee):
 # ----------------------------------------------------------------------------- tests
 
 
-@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+SWEEPS = ["static", "sweep", "long_sweep"]
+
+
+@pytest.mark.parametrize("sweep", SWEEPS)
 @pytest.mark.parametrize("name", list(SCENES))
 def test_matches_brute_force(name, sweep):
+    """Static queries: exactly the box-test pairs. Sweeps: every pair passing the exact moving-box test and only
+    swept-box pairs; a long sweep (which takes the moving-box test) only pairs passing that test within a hair's
+    margin (its rounding margin)."""
     V, E, F, nd = SCENES[name]()
-    rng = np.random.default_rng(7)
-    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    V1 = sweep_end(V, nd, sweep, 7)
     for infl in (0.0, 1e-3, 2e-2):
         fv, ee = surface_candidates(V, V1, E, F, infl, nd)
         got = _as_sets(fv, ee)
         want = brute_force(V, V1, E, F, infl, nd)
-        assert got[0] == want[0], (name, infl, "fv")
-        assert got[1] == want[1], (name, infl, "ee")
+        if V1 is None:
+            assert got == want, (name, infl)
+            continue
+        wide = brute_force(V, V1, E, F, infl, nd, _scale_pad(V, V1, infl), moving=sweep == "long_sweep")
+        assert want[0] <= got[0] <= wide[0], (name, infl, "fv")
+        assert want[1] <= got[1] <= wide[1], (name, infl, "ee")
     assert len(want[0]) > 0 and len(want[1]) > 0
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_long_sweep_drops_pairs_that_never_meet_and_keeps_those_that_do(name):
+    """On a long sweep the moving-box test drops swept-box pairs of primitives that never come near each other at
+    the same time, and every pair that comes within the inflation at some sampled time of the sweep is reported."""
+    V, E, F, nd = SCENES[name]()
+    V1 = sweep_end(V, nd, "long_sweep", 8)
+    infl = 2e-2
+    fv, ee = _as_sets(*surface_candidates(V, V1, E, F, infl, nd))
+    swept_fv, swept_ee = brute_force(V, V1, E, F, infl, nd, moving=False)
+    assert fv <= swept_fv and ee <= swept_ee
+    assert len(fv) + len(ee) < len(swept_fv) + len(swept_ee)
+    met = 0
+    for t in np.linspace(0.0, 1.0, 11):
+        Vt = (1 - t) * V + t * V1
+        near_fv, near_ee = brute_force(Vt, None, E, F, infl, nd)  # box-test superset; distances below
+        for f, v in near_fv:
+            if ipctk.point_triangle_distance(Vt[v], *Vt[F[f]]) < infl**2:
+                assert (f, v) in fv, (name, t, f, v)
+                met += 1
+        for a, b in near_ee:
+            if ipctk.edge_edge_distance(*Vt[E[a]], *Vt[E[b]]) < infl**2:
+                assert (a, b) in ee, (name, t, a, b)
+                met += 1
+    assert met > 0
+
+
+def _query(V0, V1, E, F, infl, nd, long_reach):
+    """The kernel itself with a chosen long-primitive threshold (inf: never split)."""
+    still = np.zeros(len(V0), dtype=np.uint8)
+    fv, ee, status = _bp._run(
+        V0,
+        V1,
+        True,
+        E,
+        F,
+        nd,
+        still,
+        infl,
+        numba.get_num_threads(),
+        _bp._CELL_SCALE,
+        _bp._CELLS_PER_PRIM,
+        _bp._CHUNKS_PER_THREAD,
+        _bp._SPARE_ROWS,
+        long_reach,
+        _bp._LONG_SCALE,
+        _bp._MOVING_REACH,
+    )
+    assert status == 0
+    return _as_sets(fv, ee)
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_split_into_long_and_short_primitives_gives_the_unsplit_set(name):
+    """The long/short split (long among long in a coarse grid, short among short in a fine one, the cross pass)
+    reports exactly the pairs of one grid over every primitive, at several thresholds."""
+    V, E, F, nd = SCENES[name]()
+    V1 = sweep_end(V, nd, "long_sweep", 9)
+    E, F = np.ascontiguousarray(E, dtype=np.int32), np.ascontiguousarray(F, dtype=np.int32)
+    for infl in (1e-3, 2e-2):
+        whole = _query(V, V1, E, F, infl, nd, np.inf)
+        for reach in (0.25, 1.0, _bp._LONG_REACH):
+            assert _query(V, V1, E, F, infl, nd, reach) == whole, (name, infl, reach)
 
 
 def test_large_inflation_overflows_the_first_pass():
@@ -205,8 +336,9 @@ def test_complete_against_ipctk_collisions(name):
 
 @pytest.mark.parametrize("name", ["two_boxes", "ball_in_big_triangles"])
 def test_sweep_covers_ipctk_candidates(name):
-    """ipctk's swept-box candidates, each box inflated by r, lie within ours with inflation 2 r
-    (plus a hair: ipctk pads its boxes by a little more than r)."""
+    """ipctk's swept-box candidates, each box inflated by r, lie within ours with inflation 2 r (plus a hair: ipctk
+    pads its boxes by a little more than r), except those whose moving boxes never meet at one time (ipctk's boxes
+    cover the whole sweep at once)."""
     V0, E, F, nd = SCENES[name]()
     rng = np.random.default_rng(5)
     V1 = V0.copy()
@@ -216,11 +348,15 @@ def test_sweep_covers_ipctk_candidates(name):
     mesh.can_collide = ipctk.make_static_obstacle_filter(nd)
     cand = ipctk.Candidates()
     cand.build(mesh, V0, V1, r, ipctk.BruteForce())
-    fv, ee = surface_candidates(V0, V1, E, F, 2 * r * (1 + 1e-3), nd)
+    infl = 2 * r * (1 + 1e-3)
+    fv, ee = surface_candidates(V0, V1, E, F, infl, nd)
     sfv, see = _as_sets(fv, ee)
     assert len(cand.fv_candidates) > 0 and len(cand.ee_candidates) > 0
-    assert {(c.face_id, c.vertex_id) for c in cand.fv_candidates} <= sfv
-    assert {(min(c.edge0_id, c.edge1_id), max(c.edge0_id, c.edge1_id)) for c in cand.ee_candidates} <= see
+    theirs_fv = {(c.face_id, c.vertex_id) for c in cand.fv_candidates}
+    theirs_ee = {(min(c.edge0_id, c.edge1_id), max(c.edge0_id, c.edge1_id)) for c in cand.ee_candidates}
+    meet_fv, meet_ee = brute_force(V0, V1, E, F, infl, nd)
+    assert theirs_fv & meet_fv <= sfv and theirs_ee & meet_ee <= see
+    assert len(theirs_fv & meet_fv) > 0.5 * len(theirs_fv)  # the check is not vacuous
 
 
 def test_accepts_int64_ids_and_non_contiguous_positions():
@@ -291,43 +427,56 @@ def test_bad_input():
         surface_candidates(bad, None, E, F, 1e-3, nd)
 
 
-@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+@pytest.mark.parametrize("sweep", SWEEPS)
 @pytest.mark.parametrize("name", list(SCENES))
 def test_still_vertices_leave_only_their_own_pairs_out(name, sweep):
     """``still`` marks vertices that do not move in the query: exactly the pairs made only of still or static
     vertices are left out, every other pair of the plain query is kept."""
     V, E, F, nd = SCENES[name]()
     rng = np.random.default_rng(11)
-    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    V1 = sweep_end(V, nd, sweep, 11)
     still = rng.random(len(V)) < 0.5
     moving = (np.arange(len(V)) < nd) & ~still
-    fv_all, ee_all = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd))
     fv, ee = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still))
-    want_fv = {(f, v) for f, v in fv_all if moving[v] or moving[F[f]].any()}
-    want_ee = {(a, b) for a, b in ee_all if moving[E[a]].any() or moving[E[b]].any()}
-    assert fv == want_fv and ee == want_ee
-    assert len(want_fv) < len(fv_all) and len(want_fv) > 0  # the mask matters in every scene
+    (lo_fv, lo_ee), (hi_fv, hi_ee) = _bounds(V, V1, E, F, 2e-2, nd)
+    keep_fv = lambda pairs: {(f, v) for f, v in pairs if moving[v] or moving[F[f]].any()}  # noqa: E731
+    keep_ee = lambda pairs: {(a, b) for a, b in pairs if moving[E[a]].any() or moving[E[b]].any()}  # noqa: E731
+    assert keep_fv(lo_fv) <= fv <= keep_fv(hi_fv) and keep_ee(lo_ee) <= ee <= keep_ee(hi_ee)
+    assert len(keep_fv(lo_fv)) < len(lo_fv) and len(keep_fv(lo_fv)) > 0  # the mask matters in every scene
     with pytest.raises(ValueError, match="still"):
         surface_candidates(V, V1, E, F, 2e-2, nd, still[:-1])
 
 
-@pytest.mark.parametrize("sweep", [False, True], ids=["static", "sweep"])
+@pytest.mark.parametrize("sweep", SWEEPS)
 @pytest.mark.parametrize("name", list(SCENES))
 def test_a_group_leaves_only_the_pairs_among_its_own_vertices_out(name, sweep):
     """``group`` marks a prescribed set whose pairs among themselves are skipped whether they move or not: exactly
     the pairs whose every vertex is in it are left out, alone and together with ``still``."""
     V, E, F, nd = SCENES[name]()
     rng = np.random.default_rng(12)
-    V1 = V + np.where(np.arange(len(V))[:, None] < nd, 3e-3 * rng.standard_normal(V.shape), 0.0) if sweep else None
+    V1 = sweep_end(V, nd, sweep, 12)
     half = V[:, 0] < np.median(V[:, 0])  # a spatial half: many pairs among it, many across
     scattered = rng.random(len(V)) < 0.6  # every class of primitive (in, partly in, out) in every cell
     still = rng.random(len(V)) < 0.3
+    (lo_fv, lo_ee), (hi_fv, hi_ee) = _bounds(V, V1, E, F, 2e-2, nd)
     for group, still_mask in itertools.product((half, scattered), (None, still)):
-        fv_all, ee_all = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask))
         fv, ee = _as_sets(*surface_candidates(V, V1, E, F, 2e-2, nd, still_mask, group))
-        want_fv = {(f, v) for f, v in fv_all if not (group[v] and group[F[f]].all())}
-        want_ee = {(a, b) for a, b in ee_all if not (group[E[a]].all() and group[E[b]].all())}
-        assert fv == want_fv and ee == want_ee
-        assert len(want_fv) < len(fv_all) and len(want_fv) > 0  # the group matters in every scene
+        moving = (np.arange(len(V)) < nd) & (True if still_mask is None else ~still_mask)
+
+        def keep_fv(pairs, group=group, moving=moving):
+            return {
+                (f, v) for f, v in pairs if not (group[v] and group[F[f]].all()) and (moving[v] or moving[F[f]].any())
+            }
+
+        def keep_ee(pairs, group=group, moving=moving):
+            return {
+                (a, b)
+                for a, b in pairs
+                if not (group[E[a]].all() and group[E[b]].all()) and (moving[E[a]].any() or moving[E[b]].any())
+            }
+
+        assert keep_fv(lo_fv) <= fv <= keep_fv(hi_fv) and keep_ee(lo_ee) <= ee <= keep_ee(hi_ee)
+        assert len(keep_fv(lo_fv)) > 0  # the group leaves pairs in every scene
+        assert len(keep_fv(lo_fv)) < len({p for p in lo_fv if moving[p[1]] or moving[F[p[0]]].any()})  # and takes some
     with pytest.raises(ValueError, match="group"):
         surface_candidates(V, V1, E, F, 2e-2, nd, None, group[:-1])
