@@ -115,7 +115,7 @@ def _classify(V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps):  # pragma: n
         _classify_range(ch * 256, min(n, (ch + 1) * 256), V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def _merge_repeated(key, verts, nv):  # pragma: no cover - compiled
     """keep[c] = False for every repeat of an earlier EV / VV collision with the same key (key >= 0; the first in
     index order is kept), weight[c] = how many it stands for. Bucketed by the first vertex (a counting sort, then
@@ -137,7 +137,7 @@ def _merge_repeated(key, verts, nv):  # pragma: no cover - compiled
             v = verts[c, 0]
             bucket[at[v]] = c
             at[v] += 1
-    for v in range(nv):
+    for v in prange(nv):  # each vertex's bucket on its own (disjoint entries of bucket, keep and weight)
         lo, hi = start[v], start[v + 1]
         for i in range(lo + 1, hi):  # stable insertion sort by key: equal keys keep index order
             c = bucket[i]
@@ -160,24 +160,13 @@ def _merge_repeated(key, verts, nv):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no cover - compiled
-    """The unique active collisions from classified candidates (see the module docstring): point–plane,
-    line–line and mollified edge pairs as they are; EV / VV pairs merged, their weight the count."""
+def _compact_range(
+    i0, i1, c, fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv, verts, kind, local, eps_out, dist, key
+):  # pragma: no cover - compiled
+    """Rows c, c + 1, … of the active-collision arrays from candidates [i0, i1) (those with sqd < dhat2, in order)."""
     nf = fv.shape[0]
-    n = nf + ee.shape[0]
-    m = 0
-    for i in range(n):
-        if sqd[i] < dhat2:
-            m += 1
-    verts = np.full((m, 4), -1, np.int32)
-    kind = np.empty(m, np.int8)
-    local = np.full((m, 4), -1, np.int8)
-    eps_out = np.zeros(m)
-    dist = np.empty(m)
-    key = np.full(m, -1, np.int64)  # EV / VV only: (kind, point, sorted others)
     X4 = np.empty(4, np.int64)
-    c = 0
-    for i in range(n):
+    for i in range(i0, i1):
         if sqd[i] >= dhat2:
             continue
         t = ctype[i]
@@ -197,20 +186,23 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
             mollified = eps[i] > 0.0
         kind[c] = kd
         dist[c] = sqd[i]
+        for j in range(4):
+            verts[c, j] = -1
+            local[c, j] = -1
+        eps_out[c] = 0.0
+        key[c] = -1
         if mollified:  # all four vertices; the distance keeps its closest-feature stencil
             for j in range(4):
                 verts[c, j] = X4[j]
                 local[c, j] = EE_LOCAL[t, j]
             eps_out[c] = eps[i]
         else:
-            k = 0
             for j in range(4):
                 lj = PT_LOCAL[t, j] if i < nf else EE_LOCAL[t, j]
                 if lj < 0:
                     break
                 verts[c, j] = X4[lj]
                 local[c, j] = j
-                k += 1
             if kd == PP or kd == PL:
                 p, q = np.int64(verts[c, 0]), np.int64(verts[c, 1])
                 r = np.int64(verts[c, 2]) if kd == PL else np.int64(-1)
@@ -223,6 +215,54 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
                     verts[c, 2] = r
                 key[c] = ((np.int64(kd) * nv + p) * nv + q) * (nv + 1) + (r + 1)
         c += 1
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no cover - compiled
+    """The unique active collisions from classified candidates (see the module docstring): point–plane,
+    line–line and mollified edge pairs as they are; EV / VV pairs merged, their weight the count. The active
+    candidates are counted and written in parallel chunks, in candidate order (the same arrays on any thread
+    count); the merge is serial."""
+    n = fv.shape[0] + ee.shape[0]
+    nch = max(1, min(64, n // 8192))
+    at = np.empty(nch + 1, np.int64)
+    for t in prange(nch):
+        m = 0
+        for i in range(t * n // nch, (t + 1) * n // nch):
+            if sqd[i] < dhat2:
+                m += 1
+        at[t + 1] = m
+    at[0] = 0
+    for t in range(nch):
+        at[t + 1] += at[t]
+    m = at[nch]
+    verts = np.empty((m, 4), np.int32)
+    kind = np.empty(m, np.int8)
+    local = np.empty((m, 4), np.int8)
+    eps_out = np.empty(m)
+    dist = np.empty(m)
+    key = np.empty(m, np.int64)  # EV / VV only: (kind, point, sorted others); -1 otherwise
+    for t in prange(nch):
+        _compact_range(
+            t * n // nch,
+            (t + 1) * n // nch,
+            at[t],
+            fv,
+            ee,
+            faces,
+            edges,
+            ctype,
+            sqd,
+            eps,
+            dhat2,
+            nv,
+            verts,
+            kind,
+            local,
+            eps_out,
+            dist,
+            key,
+        )
     keep, weight = _merge_repeated(key, verts, nv)
     mk = 0
     for i in range(m):
