@@ -439,11 +439,20 @@ def _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, mj):  # pragma: no cover
 
 
 @njit(cache=True, inline="always")
+def _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1):  # pragma: no cover
+    """Branch-free: the edge with box (l, h), mask mi and vertices a0, a1 and the cell's edge entry j meet
+    (:func:`_boxes_meet`) and share no vertex."""
+    b0, b1 = vt[j, 0], vt[j, 1]
+    return _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b0) & (a0 != b1) & (a1 != b0) & (a1 != b1)
+
+
+@njit(cache=True, inline="always")
 def _moving_boxes_meet(mb, i, j, pad):  # pragma: no cover
-    """Whether entries i and j of a cell can overlap (inflated) at one time t in [0, 1] of the sweep: the moving
-    boxes [lo0 + t dmin, hi0 + infl + t dmax] (``mb`` rows: lo0, hi0 + infl, dmin, dmax per axis) must overlap on
-    every axis at the same t. Each of the six conditions is linear in t; they bound an interval of t, which must
-    not be empty. ``pad`` widens every condition (a margin far above the rounding of the divisions)."""
+    """Whether rows i and j of ``mb`` (a cell's scratch copy, or the moving boxes themselves) can overlap (inflated)
+    at one time t in [0, 1] of the sweep: the moving boxes [lo0 + t dmin, hi0 + infl + t dmax] (``mb`` rows: lo0,
+    hi0 + infl, dmin, dmax per axis) must overlap on every axis at the same t. Each of the six conditions is linear
+    in t; they bound an interval of t, which must not be empty. ``pad`` widens every condition (a margin far above
+    the rounding of the divisions)."""
     if (
         mb[i, 0] <= mb[j, 3] + pad
         and mb[j, 0] <= mb[i, 3] + pad
@@ -581,14 +590,7 @@ def _pairs(
                 j0, j1 = (i + 1, kc[8]) if i < kc[5] else (kc[6], kc[7])
                 if moving:  # (two loops: the plain one stays branch-free)
                     for j in range(j0, j1):
-                        b0, b1 = vt[j, 0], vt[j, 1]
-                        ok = (
-                            _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
-                            & (a0 != b0)
-                            & (a0 != b1)
-                            & (a1 != b0)
-                            & (a1 != b1)
-                        )
+                        ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
                         if ok:
                             ok = _moving_boxes_meet(mb, i, j, pad)
                         if pe < ee_end:
@@ -598,14 +600,7 @@ def _pairs(
                         pe += ok
                 else:
                     for j in range(j0, j1):
-                        b0, b1 = vt[j, 0], vt[j, 1]
-                        ok = (
-                            _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j])
-                            & (a0 != b0)
-                            & (a0 != b1)
-                            & (a1 != b0)
-                            & (a1 != b1)
-                        )
+                        ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
                         if pe < ee_end:
                             b = vt[j, 3]
                             out_ee[pe, 0] = min(a, b)
@@ -677,57 +672,38 @@ def _grid_size(size, h, cap):  # pragma: no cover
 
 
 @njit(cache=True)
-def _grid_pairs(
-    lo, H, kind, grp, ri, mv, pad, order, org, h, cells_per_prim, size, nt, threads, chunks_per_thread, spare
-):  # pragma: no cover
+def _grid_pairs(prims, order, org, h, grid):  # pragma: no cover
     """(fv, ee) of the primitives in ``order`` among themselves: a uniform grid of edge about h, every cell's
-    pairs tested by :func:`_pairs`."""
+    pairs tested by :func:`_pairs`. ``prims`` = (lo, H, kind, grp, ri, mv, pad) of every primitive, ``grid`` =
+    (cells_per_prim, size, nt, threads, chunks_per_thread, spare)."""
+    lo, H, kind, grp, ri, mv, pad = prims
+    cells_per_prim, size, nt, threads, chunks_per_thread, spare = grid
     dims, h = _grid_size(size, h, max(64.0, cells_per_prim * order.size))
     cmin, cmax, pos = _cells(lo, H, order, org, 1.0 / h, dims, nt)
     start = _offsets(pos)
     items = _fill(cmin, cmax, order, pos, dims, start[-1])
     chunks, big, at = _chunks(start, chunks_per_thread * threads if nt > 1 else 1, spare)
     nk = chunks.size - 1
-    n_ee = np.empty(nk, dtype=np.int64)
-    n_fv = np.empty(nk, dtype=np.int64)
-    buf_ee = np.empty((at[-1], 2), dtype=np.int32)
-    buf_fv = np.empty((at[-1], 2), dtype=np.int32)
-    _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, mv, pad, cmin, big, at, at, buf_ee, buf_fv, n_ee, n_fv)
-    over = False
-    for k in range(nk):
-        over = over or n_ee[k] > at[k + 1] - at[k] or n_fv[k] > at[k + 1] - at[k]
-    if not over:
-        return _pack(buf_fv, at, n_fv), _pack(buf_ee, at, n_ee)
-    # some chunk found more pairs than its slice holds: rerun with exact slices
-    ee_at = np.zeros(nk + 1, dtype=np.int64)
-    fv_at = np.zeros(nk + 1, dtype=np.int64)
-    for k in range(nk):
-        ee_at[k + 1] = ee_at[k] + n_ee[k]
-        fv_at[k + 1] = fv_at[k] + n_fv[k]
-    out_ee = np.empty((ee_at[nk], 2), dtype=np.int32)
-    out_fv = np.empty((fv_at[nk], 2), dtype=np.int32)
-    _pairs(
-        chunks,
-        dims,
-        start,
-        items,
-        lo,
-        H,
-        kind,
-        grp,
-        ri,
-        mv,
-        pad,
-        cmin,
-        big,
-        ee_at,
-        fv_at,
-        out_ee,
-        out_fv,
-        n_ee,
-        n_fv,
-    )
-    return out_fv, out_ee
+    n_e = np.empty(nk, dtype=np.int64)
+    n_f = np.empty(nk, dtype=np.int64)
+    e_at = at
+    f_at = at
+    for _attempt in range(2):
+        out_e = np.empty((e_at[nk], 2), dtype=np.int32)
+        out_f = np.empty((f_at[nk], 2), dtype=np.int32)
+        _pairs(chunks, dims, start, items, lo, H, kind, grp, ri, mv, pad, cmin, big, e_at, f_at, out_e, out_f, n_e, n_f)
+        over = False
+        for k in range(nk):
+            over = over or n_e[k] > e_at[k + 1] - e_at[k] or n_f[k] > f_at[k + 1] - f_at[k]
+        if not over:
+            break
+        # some chunk found more pairs than its slice holds: rerun with exact slices
+        e_at = np.zeros(nk + 1, dtype=np.int64)
+        f_at = np.zeros(nk + 1, dtype=np.int64)
+        for k in range(nk):
+            e_at[k + 1] = e_at[k] + n_e[k]
+            f_at[k + 1] = f_at[k] + n_f[k]
+    return _pack(out_f, f_at, n_f), _pack(out_e, e_at, n_e)
 
 
 @njit(cache=True, inline="always")
@@ -763,22 +739,8 @@ def _cross_pair(lo, H, kind, ri, mv, pad, cmin_l, cmin_s, g, s, cx, cy, cz):  # 
         for q in range(ts + 1):
             if ri[g, p] == ri[s, q]:
                 return 0
-    if mv.shape[0] > 0:
-        tlo = 0.0
-        thi = 1.0
-        for a in range(3):
-            for o in range(2):
-                u, w = (g, s) if o == 0 else (s, g)
-                c = mv[u, 6 + a] - mv[w, 9 + a]
-                r = mv[w, 3 + a] - mv[u, a] + pad
-                if c > 0.0:
-                    thi = min(thi, r / c)
-                elif c < 0.0:
-                    tlo = max(tlo, r / c)
-                elif r < 0.0:
-                    return 0
-        if tlo > thi:
-            return 0
+    if mv.shape[0] > 0 and not _moving_boxes_meet(mv, g, s, pad):
+        return 0
     return res
 
 
@@ -843,35 +805,7 @@ def _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h, cells_per_pr
     at[0] = 0
     for t in range(ntc):
         at[t + 1] = at[t] + 16 * ((t + 1) * m // ntc - t * m // ntc) + 256
-    out_fv = np.empty((at[ntc], 2), dtype=np.int32)
-    out_ee = np.empty((at[ntc], 2), dtype=np.int32)
-    _cross(
-        lo,
-        H,
-        kind,
-        ri,
-        mv,
-        pad,
-        order_l,
-        cmin_l,
-        cmax_l,
-        cmin_s,
-        start,
-        items,
-        dims,
-        ntc,
-        n_fv,
-        n_ee,
-        out_fv,
-        out_ee,
-        at,
-    )
-    over = False
-    for t in range(ntc):
-        over = over or n_fv[t] > at[t + 1] - at[t] or n_ee[t] > at[t + 1] - at[t]
-    if over:  # rerun with slices that hold what each chunk found
-        for t in range(ntc):
-            at[t + 1] = at[t] + max(n_fv[t], n_ee[t])
+    for _attempt in range(2):
         out_fv = np.empty((at[ntc], 2), dtype=np.int32)
         out_ee = np.empty((at[ntc], 2), dtype=np.int32)
         _cross(
@@ -895,6 +829,13 @@ def _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h, cells_per_pr
             out_ee,
             at,
         )
+        over = False
+        for t in range(ntc):
+            over = over or n_fv[t] > at[t + 1] - at[t] or n_ee[t] > at[t + 1] - at[t]
+        if not over:
+            break
+        for t in range(ntc):  # rerun with slices that hold what each chunk found
+            at[t + 1] = at[t] + max(n_fv[t], n_ee[t])
     return _pack(out_fv, at, n_fv), _pack(out_ee, at, n_ee)
 
 
@@ -962,10 +903,12 @@ def _run(  # pragma: no cover
     mv = np.empty((0, 12))
     split = False
     h0 = h
+    grid = (cells_per_prim, size, nt, threads, chunks_per_thread, spare)
     if sweep and n_edges > 0 and ext[:, 12].max() > moving_reach * h:
         mv, stat = _moving_boxes(V0, V1, ri, kind, infl, nt)
         h0 = infl + scale * stat[:, 0].sum() / n_edges
         split = h0 > 0.0 and stat[:, 1].max() > long_reach * h0
+    prims = (lo, H, kind, grp, ri, mv, pad)
     if split:
         is_long = np.empty(n, dtype=np.int8)
         side_s = 0.0
@@ -987,48 +930,12 @@ def _run(  # pragma: no cover
         order_l = _order_subset(kind, is_long, 1)
         h_s = infl + scale * side_s / cnt_s if cnt_s > 0 else h0
         h_l = infl + long_scale * side_l / cnt_l if cnt_l > 0 else h0
-        fv_s, ee_s = _grid_pairs(
-            lo,
-            H,
-            kind,
-            grp,
-            ri,
-            mv,
-            pad,
-            order_s,
-            org,
-            h_s,
-            cells_per_prim,
-            size,
-            nt,
-            threads,
-            chunks_per_thread,
-            spare,
-        )
-        fv_l, ee_l = _grid_pairs(
-            lo,
-            H,
-            kind,
-            grp,
-            ri,
-            mv,
-            pad,
-            order_l,
-            org,
-            h_l,
-            cells_per_prim,
-            size,
-            nt,
-            threads,
-            chunks_per_thread,
-            spare,
-        )
+        fv_s, ee_s = _grid_pairs(prims, order_s, org, h_s, grid)
+        fv_l, ee_l = _grid_pairs(prims, order_l, org, h_l, grid)
         fv_x, ee_x = _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h_s, cells_per_prim, size, threads)
         return _concat(fv_s, fv_l, fv_x), _concat(ee_s, ee_l, ee_x), 0
     order = _order(kind, kcnt)
-    fv, ee = _grid_pairs(
-        lo, H, kind, grp, ri, mv, pad, order, org, h, cells_per_prim, size, nt, threads, chunks_per_thread, spare
-    )
+    fv, ee = _grid_pairs(prims, order, org, h, grid)
     return fv, ee, 0
 
 
