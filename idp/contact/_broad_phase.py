@@ -7,6 +7,8 @@ Rule. Each primitive (vertex, edge, face) has the axis-aligned box [lo, hi] of i
 V0, and also at V1 for a linear sweep). A pair is reported iff, on every axis,
 ``lo_a <= hi_b + inflation and lo_b <= hi_a + inflation``, evaluated literally (``hi + inflation``
 is rounded once and stored), so a brute force implementing the same expression gets the same set.
+A sweep that moves some vertex further than a grid cell also drops the pairs that fail the moving-box
+test ("Long sweeps" below), which no pair coming within the inflation fails.
 Never reported: a face with one of its own vertices, two edges sharing a vertex, pairs whose
 vertices are all static (id >= num_dynamic, or marked still for the query), and pairs whose vertices
 are all in the query's ``group``.
@@ -117,7 +119,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     ext[t] = this chunk's (min dynamic lo (3), max dynamic H (3), sum of the dynamic edges'
     largest box side, their count, the same for the dynamic faces, 1 if it saw a non-finite
     coordinate, 1 if it saw a vertex id outside [0, nv), the largest displacement component of a dynamic vertex);
-    kcnt[t] = its count per kind."""
+    """
     nv = V0.shape[0]
     ne = E.shape[0]
     n = nv + ne + F.shape[0]
@@ -127,10 +129,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     grp = np.empty(n, dtype=np.int32)
     ri = np.empty((n, 4), dtype=np.int32)
     ext = np.empty((nt, 13))
-    kcnt = np.empty((nt, NUM_KINDS), dtype=np.int64)  # np.zeros here would be a parallel region of its own
     for t in prange(nt):
-        for k in range(NUM_KINDS):
-            kcnt[t, k] = 0
         m0 = np.inf
         m1 = np.inf
         m2 = np.inf
@@ -202,7 +201,6 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
                 H[g, a] = hg + infl
             kk = 4 * (k - 1) + (0 if d else 2) + (1 if ing else 0)
             kind[g] = kk
-            kcnt[t, kk] += 1
             if d:
                 m0 = min(m0, lo[g, 0])
                 m1 = min(m1, lo[g, 1])
@@ -234,7 +232,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
         ext[t, 10] = bad
         ext[t, 11] = bad_ids
         ext[t, 12] = disp
-    return lo, H, kind, grp, ri, ext, kcnt
+    return lo, H, kind, grp, ri, ext
 
 
 @njit(cache=True, parallel=True)
@@ -275,21 +273,6 @@ def _moving_boxes(V0, V1, ri, kind, infl, nt):  # pragma: no cover
         stat[t, 0] = side0
         stat[t, 1] = reach
     return mv, stat
-
-
-@njit(cache=True)
-def _order(kind, kcnt):  # pragma: no cover
-    """Primitive ids sorted (stably) by kind."""
-    nk = kcnt.shape[1]
-    pos = np.zeros(nk, dtype=np.int64)
-    for k in range(nk - 1):
-        pos[k + 1] = pos[k] + kcnt[:, k].sum()
-    order = np.empty(kind.size, dtype=np.int32)
-    for g in range(kind.size):
-        k = kind[g]
-        order[pos[k]] = g
-        pos[k] += 1
-    return order
 
 
 @njit(cache=True, parallel=True)
@@ -640,8 +623,8 @@ def _pack(buf, at, counts):  # pragma: no cover
 
 
 @njit(cache=True)
-def _order_subset(kind, sel, want):  # pragma: no cover
-    """Ids of the primitives with ``sel == want``, sorted (stably) by kind."""
+def _order(kind, sel, want):  # pragma: no cover
+    """Ids of the primitives with ``sel == want``, sorted (stably) by kind (a counting sort)."""
     pos = np.zeros(NUM_KINDS + 1, dtype=np.int64)
     for g in range(kind.size):
         if sel[g] == want:
@@ -872,7 +855,7 @@ def _run(  # pragma: no cover
     nv = V0.shape[0]
     n = nv + E.shape[0] + F.shape[0]
     nt = max(1, min(threads, n // 2048 + 1))
-    lo, H, kind, grp, ri, ext, kcnt = _boxes(V0, V1, sweep, E, F, nd, still, infl, nt)
+    lo, H, kind, grp, ri, ext = _boxes(V0, V1, sweep, E, F, nd, still, infl, nt)
     org = np.empty(3)
     size = np.empty(3)
     if ext[:, 11].max() > 0:
@@ -926,15 +909,15 @@ def _run(  # pragma: no cover
                 else:
                     side_s += sd
                     cnt_s += 1.0
-        order_s = _order_subset(kind, is_long, 0)
-        order_l = _order_subset(kind, is_long, 1)
+        order_s = _order(kind, is_long, 0)
+        order_l = _order(kind, is_long, 1)
         h_s = infl + scale * side_s / cnt_s if cnt_s > 0 else h0
         h_l = infl + long_scale * side_l / cnt_l if cnt_l > 0 else h0
         fv_s, ee_s = _grid_pairs(prims, order_s, org, h_s, grid)
         fv_l, ee_l = _grid_pairs(prims, order_l, org, h_l, grid)
         fv_x, ee_x = _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h_s, cells_per_prim, size, threads)
         return _concat(fv_s, fv_l, fv_x), _concat(ee_s, ee_l, ee_x), 0
-    order = _order(kind, kcnt)
+    order = _order(kind, np.zeros(n, dtype=np.int8), 0)
     fv, ee = _grid_pairs(prims, order, org, h, grid)
     return fv, ee, 0
 
@@ -963,8 +946,9 @@ def surface_candidates(
     V0: (nv, 3) positions; V1: None (static query) or (nv, 3) end positions of a linear sweep,
     the boxes then covering both. edges (ne, 2), faces (nf, 3): vertex ids. A pair is reported
     iff on every axis ``lo_a <= hi_b + inflation and lo_b <= hi_a + inflation`` (so every pair
-    closer than ``inflation`` is); pairs sharing a vertex and pairs whose vertices are all static
-    (id >= num_dynamic, or marked in ``still``) are left out.
+    closer than ``inflation`` is) and, for a sweep moving some vertex further than a grid cell, the two
+    primitives' moving boxes overlap at one common time (the module docstring); pairs sharing a vertex and pairs
+    whose vertices are all static (id >= num_dynamic, or marked in ``still``) are left out.
 
     ``still``: optional (nv,) bool, vertices that do not move in the query at hand (Dirichlet-held vertices of
     a Newton step): pairs made only of static or still vertices cannot change their distance, so the barrier

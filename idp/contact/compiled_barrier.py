@@ -222,7 +222,7 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
     """The unique active collisions from classified candidates (see the module docstring): point–plane,
     line–line and mollified edge pairs as they are; EV / VV pairs merged, their weight the count. The active
     candidates are counted and written in parallel chunks, in candidate order (the same arrays on any thread
-    count); the merge is serial."""
+    count); the merge sorts each first vertex's bucket in parallel."""
     n = fv.shape[0] + ee.shape[0]
     nch = max(1, min(64, n // 8192))
     at = np.empty(nch + 1, np.int64)
