@@ -6,10 +6,11 @@ catches that. Nothing else in idp imports cvxopt.
 
 Per sparsity pattern (the first call and whenever ``indptr``/``indices`` change):
 
-1. ordering: METIS nested dissection of the vertex graph (pymetis), expanded to the
-   ``dofs_per_node`` DOFs of each vertex and passed to CHOLMOD as ``p`` with
-   ``nmethods=1`` (CHOLMOD's default ``nmethods=0`` would also run AMD: +0.15 s at
-   59K DOF for nothing). Without pymetis CHOLMOD's AMD is used.
+1. ordering of the vertex graph, expanded to the ``dofs_per_node`` DOFs of each vertex and
+   passed to CHOLMOD as ``p`` with ``nmethods=1`` (CHOLMOD's default ``nmethods=0`` would also
+   run AMD: +0.15 s at 59K DOF for nothing): METIS nested dissection (pymetis) or AMD
+   (``cvxopt.amd``), whichever predicts less factorisation work (:func:`choose_ordering`). Without
+   pymetis CHOLMOD's AMD is used.
 2. symbolic: index map of the lower triangle, one ``cvxopt.spmatrix`` built from
    triplets, ``cholmod.symbolic(S, p, uplo='L')``.
 
@@ -22,6 +23,13 @@ on a 59K-DOF tet grid (bench/bench_linear.py), keeping the old ordering after ad
 10 / 100 / 1000 contact couplings between vertices <= 3 cells apart grew nnz(L) by
 6 % / 30 % / 190 % and the numeric time from 1.8-2.0 s to 2.0 / 3.1 / 11.0 s, whereas a
 fresh nested dissection costs 0.13 s. Couplings between far vertices are worse still.
+
+Which ordering: on volumes METIS needs far less work (bunny_3376's Newton matrices: AMD's factorisation 1.2–1.7× as
+slow), on surfaces the two are alike (the Fig. 12 cat: the same numeric time) while AMD orders 3–5× faster (cat
+5 against 22–26 ms, Kick 7–13 against 28–56 ms). Both are computed at the first analysis and again after
+``ORDERING_RECHECK`` analyses, an interval that doubles while the choice stays the same, and the one with fewer
+predicted flops (Σ c_j² of the vertex graph's factor column counts, within ``AMD_MARGIN``) is used until the next
+comparison.
 
 Memory (:meth:`CholmodSolver.factor_bytes`): a supernodal factor stores every (relaxed) supernode as a dense
 rows × columns block of float64. From the fundamental supernodes of the symbolic count the model is
@@ -42,7 +50,7 @@ from contextlib import contextmanager
 import cvxopt
 import numpy as np
 import scipy.sparse as sp
-from cvxopt import cholmod
+from cvxopt import amd, cholmod
 
 from idp.errors import SolverError
 from idp.solver.linear import (
@@ -50,12 +58,42 @@ from idp.solver.linear import (
     NotPositiveDefinite,
     PatternCache,
     compressed_arrays,
+    expand_vertex_ordering,
     have_pymetis,
+    metis_vertex_ordering,
     nested_dissection_ordering,
+    vertex_graph,
 )
-from idp.solver.symbolic import SymbolicCounts
+from idp.solver.symbolic import SymbolicCounts, cholesky_flops
 
-__all__ = ["CholmodSolver"]
+__all__ = ["CholmodSolver", "choose_ordering"]
+
+#: AMD is used while its predicted factorisation work is at most this multiple of METIS's (it orders faster)
+AMD_MARGIN = 1.03
+#: analyses between the first two comparisons of the orderings (the chosen one alone is computed in between); the
+#: interval doubles each time a comparison confirms the choice and comes back to this when the choice changes
+ORDERING_RECHECK = 4
+
+
+def amd_vertex_ordering(xadj: np.ndarray, adjncy: np.ndarray) -> np.ndarray:
+    """Approximate minimum degree (SuiteSparse AMD through ``cvxopt.amd``) of a graph: the vertex order, int64."""
+    nv = xadj.size - 1
+    rows = np.repeat(np.arange(nv, dtype=np.int64), np.diff(xadj))
+    keep = adjncy > rows  # AMD reads one triangle (the lower one: row > column)
+    G = cvxopt.spmatrix(1.0, cvxopt.matrix(adjncy[keep]), cvxopt.matrix(rows[keep]), (nv, nv))
+    return np.array(amd.order(G, uplo="L"), dtype=np.int64).ravel()
+
+
+def choose_ordering(xadj: np.ndarray, adjncy: np.ndarray) -> tuple[str, np.ndarray]:
+    """("metis" or "amd", vertex order): METIS nested dissection and AMD of the vertex graph, and the one whose factor
+    needs fewer flops (AMD when within ``AMD_MARGIN`` of METIS, as it orders faster)."""
+    nv = xadj.size - 1
+    metis, approx = metis_vertex_ordering(xadj, adjncy), amd_vertex_ordering(xadj, adjncy)
+    # int32 indices, as the Newton matrices' own patterns are counted (one compiled specialisation of the counts)
+    ptr, idx = (a.astype(np.int32) for a in (xadj, adjncy)) if adjncy.size < 2**31 else (xadj, adjncy)
+    f_metis = cholesky_flops(ptr, idx, nv, metis)
+    f_amd = cholesky_flops(ptr, idx, nv, approx)
+    return ("amd", approx) if f_amd <= AMD_MARGIN * f_metis else ("metis", metis)
 
 
 @contextmanager
@@ -93,6 +131,9 @@ class CholmodSolver(LinearSolver):
         self._keys: np.ndarray | None = None  # sorted keys col*n + row of the analysed lower triangle
         self._factored = False
         self.union_growth = 1.3  # analyse the union of old and new patterns while it stays this small
+        self._ordering_kind: str | None = None  # "metis" or "amd": the last comparison's choice
+        self._since_ordering_check = 0  # analyses since that comparison
+        self._ordering_interval = ORDERING_RECHECK  # analyses until the next one
 
     def _fresh(self) -> CholmodSolver:
         other = CholmodSolver(self.dofs_per_node, use_metis=self.use_metis, reuse_ordering=self.reuse_ordering)
@@ -112,7 +153,7 @@ class CholmodSolver(LinearSolver):
         elif self.use_metis:
             G = sp.csr_matrix((np.ones(keys.size), (row, col)), shape=(n, n))
             G = (G + G.T).tocsr()
-            perm = nested_dissection_ordering(G.indptr, G.indices, n, self.dofs_per_node)
+            perm = self._ordering(G.indptr, G.indices, n)
         else:
             perm = None
         t1 = time.perf_counter()
@@ -134,6 +175,28 @@ class CholmodSolver(LinearSolver):
         self.stats["ordering"] += t1 - t0
         self.stats["symbolic"] += t2 - t1
         self.stats["symbolic_analyses"] += 1
+
+    def _ordering(self, indptr: np.ndarray, indices: np.ndarray, n: int) -> np.ndarray:
+        """Fill-reducing DOF ordering of a symmetric pattern: METIS or AMD of its vertex graph, compared from time to
+        time (:func:`choose_ordering`; see the module docstring), the last choice alone in between."""
+        d = self.dofs_per_node
+        if n == 0 or n % d:
+            return nested_dissection_ordering(indptr, indices, n, d)
+        xadj, adjncy = vertex_graph(indptr, indices, n, d)
+        if self._ordering_kind is None or self._since_ordering_check >= self._ordering_interval:
+            previous = self._ordering_kind
+            self._ordering_kind, vperm = choose_ordering(xadj, adjncy)
+            same = previous == self._ordering_kind
+            self._ordering_interval = 2 * self._ordering_interval if same else ORDERING_RECHECK
+            self._since_ordering_check = 1
+            self.stats["ordering_checks"] = self.stats.get("ordering_checks", 0) + 1
+        else:
+            self._since_ordering_check += 1
+            order = metis_vertex_ordering if self._ordering_kind == "metis" else amd_vertex_ordering
+            vperm = order(xadj, adjncy)
+        key = f"{self._ordering_kind}_orderings"
+        self.stats[key] = self.stats.get(key, 0) + 1
+        return expand_vertex_ordering(vperm, d)
 
     def _load_changed_pattern(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, n: int) -> None:
         """A pattern other than the last one: reuse the symbolic factorisation when it is a subset of the

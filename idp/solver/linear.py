@@ -183,6 +183,26 @@ def vertex_graph(indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node:
     return xadj, adjncy
 
 
+def metis_vertex_ordering(xadj: np.ndarray, adjncy: np.ndarray) -> np.ndarray:
+    """METIS nested dissection (pymetis) of a graph without self loops: the vertex order, int64."""
+    import pymetis
+
+    if hasattr(pymetis, "CSRAdjacency"):
+        perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(xadj, adjncy))
+    else:  # pymetis < 2025.2
+        perm, _ = pymetis.nested_dissection(xadj=xadj, adjncy=adjncy)
+    # pymetis returns array('q'); np.asarray of it may come out unsigned, so cast.
+    return np.array(perm, dtype=np.int64)
+
+
+def expand_vertex_ordering(vperm: np.ndarray, dofs_per_node: int) -> np.ndarray:
+    """The DOF permutation that orders vertices by ``vperm`` and keeps each vertex's DOFs together, in order."""
+    d = int(dofs_per_node)
+    if d == 1:
+        return np.asarray(vperm, dtype=np.int64)
+    return (d * np.asarray(vperm, dtype=np.int64)[:, None] + np.arange(d, dtype=np.int64)).ravel()
+
+
 def nested_dissection_ordering(indptr: np.ndarray, indices: np.ndarray, n: int, dofs_per_node: int) -> np.ndarray:
     """Fill-reducing DOF permutation from METIS nested dissection of the vertex graph.
 
@@ -191,21 +211,11 @@ def nested_dissection_ordering(indptr: np.ndarray, indices: np.ndarray, n: int, 
     (kept together). If ``n`` is not a multiple of ``dofs_per_node`` the scalar graph is
     ordered instead. Needs pymetis.
     """
-    import pymetis
-
     d = dofs_per_node if (dofs_per_node >= 1 and n % dofs_per_node == 0) else 1
     if n == 0:
         return np.zeros(0, dtype=np.int64)
     xadj, adjncy = vertex_graph(indptr, indices, n, d)
-    if hasattr(pymetis, "CSRAdjacency"):
-        perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(xadj, adjncy))
-    else:  # pymetis < 2025.2
-        perm, _ = pymetis.nested_dissection(xadj=xadj, adjncy=adjncy)
-    # pymetis returns array('q'); np.asarray of it may come out unsigned, so cast.
-    vperm = np.array(perm, dtype=np.int64)
-    if d == 1:
-        return vperm
-    return (d * vperm[:, None] + np.arange(d, dtype=np.int64)).ravel()
+    return expand_vertex_ordering(metis_vertex_ordering(xadj, adjncy), d)
 
 
 # --------------------------------------------------------------------------- interface

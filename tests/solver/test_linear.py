@@ -401,3 +401,70 @@ def test_pattern_cache_keeps_frozen_layout_arrays_and_copies_writeable_ones():
     assert not np.shares_memory(cache.indices, indices)
     indices[0] = 5
     assert not cache.same(indptr, indices)
+
+
+# ----------------------------------------------------------------------------- ordering choice (CHOLMOD backend)
+
+
+def chain_matrix(nv: int = 400, d: int = 3, seed: int = 0) -> sp.csr_matrix:
+    """A path of vertices (a block tridiagonal SPD matrix): minimum degree orders it without any fill."""
+    rng = np.random.default_rng(seed)
+    E = np.stack([np.arange(nv - 1), np.arange(1, nv)], axis=1)
+    A = edge_matrix(E, spd_blocks(rng, nv - 1, d), nv, d) + sp.diags(rng.uniform(0.5, 1.5, nv * d))
+    A = sp.csr_matrix(A)
+    A.sort_indices()
+    return A
+
+
+@pytest.mark.parametrize(("matrix", "expected"), [("grid", "metis"), ("chain", "amd")])
+def test_ordering_choice_follows_predicted_work(matrix: str, expected: str) -> None:
+    """METIS for a volume grid (nested dissection needs far less work), AMD for a path (no fill at all); the chosen
+    ordering's predicted flops are those of the better one within the margin."""
+    pytest.importorskip("cvxopt", reason="cvxopt not importable: CHOLMOD backend not tested")
+    if not have_pymetis():
+        pytest.skip("pymetis not importable")
+    from idp.solver.cholmod_cvxopt import AMD_MARGIN, amd_vertex_ordering, choose_ordering
+    from idp.solver.linear import metis_vertex_ordering, vertex_graph
+    from idp.solver.symbolic import cholesky_flops
+
+    A = make_matrix(nx=12) if matrix == "grid" else chain_matrix()
+    n = A.shape[0]
+    xadj, adjncy = vertex_graph(A.indptr, A.indices, n, 3)
+    nv = n // 3
+    kind, vperm = choose_ordering(xadj, adjncy)
+    assert kind == expected
+    assert np.array_equal(np.sort(vperm), np.arange(nv))
+    flops = {
+        name: cholesky_flops(xadj, adjncy, nv, order(xadj, adjncy))
+        for name, order in (("metis", metis_vertex_ordering), ("amd", amd_vertex_ordering))
+    }
+    assert cholesky_flops(xadj, adjncy, nv, vperm) <= AMD_MARGIN * min(flops.values())
+    if matrix == "grid":
+        assert flops["amd"] > 1.2 * flops["metis"]
+    else:
+        assert flops["amd"] == pytest.approx(sum(c * c for c in [2.0] * (nv - 1) + [1.0]))  # no fill: counts 2, …, 2, 1
+
+
+def test_ordering_comparisons_thin_out_while_the_choice_holds() -> None:
+    """The orderings are compared at the first analysis and after 4, 8, 16 … more while the choice stays; every
+    pattern is still factorised correctly with the ordering in use."""
+    pytest.importorskip("cvxopt", reason="cvxopt not importable: CHOLMOD backend not tested")
+    if not have_pymetis():
+        pytest.skip("pymetis not importable")
+    from idp.solver.cholmod_cvxopt import ORDERING_RECHECK
+
+    s = _cholmod_solver(3)
+    s.union_growth = 0.0  # every new pattern analysed on its own
+    rng = np.random.default_rng(3)
+    base = chain_matrix(nv=300)
+    analyses = 1 + ORDERING_RECHECK + 2 * ORDERING_RECHECK
+    for k in range(analyses):
+        P = np.array([[k, 150 + k]])  # one more coupling each time: a new pattern
+        A = sp.csr_matrix(base + edge_matrix(P, spd_blocks(rng, 1, 3), 300, 3))
+        A.sort_indices()
+        s.factorize(A)
+        b = rng.standard_normal(A.shape[0])
+        assert rel_residual(A, s.solve(b), b) < 1e-10
+    assert s.stats["symbolic_analyses"] == analyses
+    assert s.stats["ordering_checks"] == 3  # analyses 1, 1 + 4 and 1 + 4 + 8
+    assert s.stats["amd_orderings"] + s.stats.get("metis_orderings", 0) == analyses
