@@ -141,8 +141,9 @@ class CholmodSolver(LinearSolver):
         return other
 
     # ------------------------------------------------------------------ pattern work
-    def _analyse_lower(self, keys: np.ndarray, vals: np.ndarray, n: int) -> None:
-        """Ordering + symbolic factorisation of the lower-triangle pattern given by ``keys``."""
+    def _analyse_lower(self, keys: np.ndarray, vals: np.ndarray, n: int, S: cvxopt.spmatrix | None = None) -> None:
+        """Ordering + symbolic factorisation of the lower-triangle pattern given by ``keys``; ``S``: that pattern's
+        matrix (holding ``vals``) when the caller has it, else it is built from the keys."""
         self._F = None
         self._pattern.clear()
         t0 = time.perf_counter()
@@ -163,7 +164,8 @@ class CholmodSolver(LinearSolver):
                 G = (G + G.T).tocsr()
             self._check_memory(None if G is None else G.indptr, None if G is None else G.indices, n, perm)
         G = None
-        S = cvxopt.spmatrix(cvxopt.matrix(vals), cvxopt.matrix(row), cvxopt.matrix(col), (n, n))
+        if S is None:
+            S = cvxopt.spmatrix(cvxopt.matrix(vals), cvxopt.matrix(row), cvxopt.matrix(col), (n, n))
         opts = {"supernodal": 2, "postorder": True, "nmethods": 1 if perm is not None else 0}
         with _options(**opts):
             if perm is not None:
@@ -226,7 +228,15 @@ class CholmodSolver(LinearSolver):
                 del pos, inside
                 union = np.insert(self._keys, np.searchsorted(self._keys, new), new)
                 self._pos = self._mask(np.searchsorted(union, keys), union.size)
-                self._analyse_lower(union, self._spread(vals, union.size), n)
+                full = self._spread(vals, union.size)
+                # the analysed matrix plus explicit zeros at the new entries: cvxopt merges the sorted columns, a
+                # third of the time of building the union from triplets (5 against 14 ms at the Fig. 12 cat)
+                S = self._S + cvxopt.spmatrix(0.0, cvxopt.matrix(new % n), cvxopt.matrix(new // n), (n, n))
+                if len(S) == union.size:
+                    S.V = cvxopt.matrix(full)
+                else:  # (cvxopt dropped or merged an entry: never seen) the union from its keys
+                    S = None
+                self._analyse_lower(union, full, n, S)
                 return
         self._pos = None
         self._analyse_lower(keys, vals, n)
