@@ -236,7 +236,8 @@ class GrowingBlockPattern:
         self.extra = extra
         base = self.base.keys
         # the extra keys are outside the base: the union is an insertion, and base key e lands at e + (extra keys
-        # below it) (sorted merges instead of np.union1d's hashing of both: 5 ms a growth at the Fig. 12 cat)
+        # below it) (instead of np.union1d's hashing of both: a growth at the Fig. 12 cat 20 → 9 ms, with the
+        # union in _grow_keys)
         full = np.insert(base, np.searchsorted(base, extra), extra)
         self.layout, self._base_to_full = self.base, None  # the old layout's arrays are freed before the new are built
         self.layout = BlockLayout(full, self.base.nfv, self.base.d)
