@@ -26,9 +26,15 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    An iterate whose cut step is ``STEP_GROWTH`` (1.5) times longer than every earlier cut step of the solve does
    not count: the pair that cuts the steps is opening.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
-   targets (by a feasible move: it is checked like any other), or, when that last move would collide, held where
-   they are (met within the tolerance, the residual reported); the penalty is dropped and Newton continues to
-   convergence.
+   targets (by a feasible move: it is checked like any other); the penalty is dropped and Newton continues to
+   convergence. When that last move would collide (a free body within CCD's margin of the targets), the penalty
+   stays on: Newton goes on converging, and at each near-converged iterate κ_B doubles, up to
+   ``max_snap_doublings`` (8) times, while each doubling brings the worst bound vertex ``min_progress`` closer.
+   A free body resists with a force of its own, so the gap it keeps depends on that force while the bound
+   vertices' remaining move halves with each doubling, and the snap goes through (a repair's prescribed sphere
+   pressed on the free one: 6e-5 off at the first try, snapped after Newton converged the penalty). Only when
+   the doublings stop bringing them closer (the prescribed input crosses itself there) or are spent are the
+   bound vertices held where they are: met within the tolerance, the residual reported.
 
 Bound vertices that are not optimised DOFs (a kinematic obstacle: a rigid tool) move first by the feasible
 fraction at ``begin``; then each tool is one reduced Newton DOF s: its vertices at x + s·P (P = the remaining
@@ -82,6 +88,7 @@ class DirichletTargets:
         detect_blocked: bool = True,
         tools_in_newton: bool = True,
         max_multiplier_updates: int = 30,
+        max_snap_doublings: int = 8,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
         optimises (default: those with mass); ``tolerance``: distance (scene units) under which a bound vertex
@@ -104,6 +111,7 @@ class DirichletTargets:
         self.kinematic_progress = float(kinematic_progress) if kinematic_progress else 0.1 * self.tolerance
         self.kappa = self.kappa_initial
         self.max_multiplier_updates = int(max_multiplier_updates)
+        self.max_snap_doublings = int(max_snap_doublings)
         self.tools_in_newton = bool(tools_in_newton)
         positive = self.masses[self.masses > 0]
         self.tool_mass = float(positive.mean()) if positive.size else 1.0
@@ -133,6 +141,8 @@ class DirichletTargets:
         self._multiplier = np.zeros((int(np.count_nonzero(self._penalised)), self.dim))
         self.kinematic_moves = 0
         self.frozen = False
+        self._snap_residual: float | None = None  # the worst residual when κ_B was last doubled for a blocked snap
+        self._snap_doublings = 0
 
     # -- set-up per step -----------------------------------------------------------------------
     def set_targets(
@@ -272,9 +282,14 @@ class DirichletTargets:
                 x[self.vertices] = self.targets
                 self._hold()
                 return x, True
-            # the last bit of the move would collide (a prescribed animation whose own parts pass through each
-            # other there): met within the tolerance, held where they are (further doublings of κ_B would only
-            # press the colliding pair together; the residual is reported)
+            # the last bit of the move would collide. Against a free body that resists with a force of its own,
+            # the gap it keeps from the bound vertices depends on that force alone, while each doubling of κ_B
+            # halves the bound vertices' remaining move: a few doublings let the snap through.
+            if self._penalty_on and self._snap_retry(worst, near_converged):
+                return x, near_converged
+            # A doubling that brought them no closer (a prescribed animation whose own parts pass through each
+            # other there), or the retries spent: met within the tolerance, held where they are (further
+            # doublings would only press the colliding pair together; the residual is reported)
             self._hold()
             return x, True
         if self._penalty_on and not near_converged:
@@ -341,6 +356,22 @@ class DirichletTargets:
         if not changed:
             self._blocked = True
         return x, changed
+
+    def _snap_retry(self, worst: float, near_converged: bool) -> bool:
+        """Whether to keep the penalty on after a blocked snap (κ_B doubled at a near-converged iterate), rather
+        than hold the bound vertices within the tolerance: while retries are left, κ_B is below its cap, and
+        the last doubling for a snap brought the worst bound vertex at least ``min_progress`` closer."""
+        if not near_converged:
+            return self._snap_residual is None or self._snap_doublings < self.max_snap_doublings
+        if self._snap_doublings >= self.max_snap_doublings or self.kappa >= self.kappa_max:
+            return False
+        if self._snap_residual is not None and worst > (1.0 - self.min_progress) * self._snap_residual:
+            return False
+        self._snap_residual = worst
+        self._snap_doublings += 1
+        self.kappa = min(2.0 * self.kappa, self.kappa_max)
+        self.doublings += 1
+        return True
 
     @property
     def settled(self) -> bool:

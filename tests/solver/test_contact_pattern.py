@@ -197,7 +197,9 @@ def test_many_missing_collision_blocks_grow_the_pattern_exactly():
 
 def test_folding_bounds_the_sum_of_collisions_that_share_a_coupling():
     """Two collision blocks coupling the same two far-apart vertices: the fold must bound their summed coupling
-    (root of the summed squares of the separate blocks is too small for rank-one blocks that add up)."""
+    (root of the summed squares of the separate blocks is too small for rank-one blocks that add up), and it adds
+    no more than that coupling needs: M − exact has its rank, one (a multiple of the identity on both diagonal
+    blocks would leave five)."""
     _rng, dmap, asm, blocks, diag = _chain_problem()
     pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
     data = asm.assemble_data([blocks], [1.0], diag)
@@ -215,7 +217,11 @@ def test_folding_bounds_the_sum_of_collisions_that_share_a_coupling():
         rb = free[(2, 15)[b]] * DIM + np.arange(DIM)
         exact[np.ix_(ra, rb)] += 2 * block[a * DIM : a * DIM + DIM, b * DIM : b * DIM + DIM]
     gap = M.toarray() - exact
-    assert np.linalg.eigvalsh(gap).min() > -1e-9 * np.abs(exact).max()  # M ⪰ exact Hessian
+    ev = np.linalg.eigvalsh(gap)
+    assert ev.min() > -1e-9 * np.abs(exact).max()  # M ⪰ exact Hessian
+    assert np.count_nonzero(ev > 1e-9 * np.abs(exact).max()) == 1
+    # B = 2 · (−1e3 n nᵀ), σ(B) = 2e3; [U; −V] S [U; −V]ᵀ has the one eigenvalue σ(B)·(|u|² + |v|²) = 2σ(B)
+    assert ev.max() == pytest.approx(2 * 2e3, rel=1e-9)
 
 
 @pytest.mark.parametrize("fold_limit", [0, 10_000])

@@ -111,6 +111,36 @@ def test_blocked_targets_stop_the_doubling():
     assert bc.settled and not bc.met and bc.report(x, 1e-3)["blocked"] and bc.doublings == 2
 
 
+def test_a_blocked_snap_is_retried_until_the_penalty_brings_the_vertices_closer():
+    """The snap's last bit would reach a free body (within CCD's margin of the target while the residual is above
+    2e-5): the penalty stays on while Newton converges and κ_B doubles; the snap goes through once the residual
+    is small enough, so the bound vertex ends exactly on its target."""
+    bc, x = _one_handle(tolerance=1e-4, kappa_initial=1.0)
+    feasible = lambda x, P: 1.0 if abs(P[0, 0]) < 2e-5 else 0.5  # noqa: E731
+    x[0] = 1.0 + 6e-5
+    assert bc.after_iterate(x, False, feasible) == (x, False)  # not near convergence: Newton goes on
+    assert not bc.settled and bc.penalty_value(x) > 0
+    x, changed = bc.after_iterate(x, True, feasible)  # converged with the snap blocked: κ_B doubles
+    assert changed and bc.kappa == 2.0 and not bc.settled
+    x[0] = 1.0 + 3e-5
+    assert bc.after_iterate(x, True, feasible)[1] and bc.kappa == 4.0
+    x[0] = 1.0 + 1.5e-5  # now within the free body's gap of its target
+    x, changed = bc.after_iterate(x, False, feasible)
+    assert changed and bc.met and x[0, 0] == 1.0
+
+
+def test_a_snap_that_the_penalty_cannot_bring_closer_is_held_within_the_tolerance():
+    """A doubling that leaves the residual where it was (the vertex's own input crosses something there): held
+    within the tolerance, met, after one retry."""
+    bc, x = _one_handle(tolerance=1e-4, kappa_initial=1.0)
+    blocked = lambda x, P: 0.5  # noqa: E731
+    x[0] = 1.0 + 6e-5
+    assert bc.after_iterate(x, True, blocked)[1] and bc.kappa == 2.0
+    x, changed = bc.after_iterate(x, True, blocked)  # no closer after the doubling
+    assert changed and bc.met and bc.settled and x[0, 0] == 1.0 + 6e-5 and bc.kappa == 2.0
+    assert bc.penalty_value(x) == 0.0
+
+
 def test_growing_small_gains_keep_doubling():
     """Against an elastic stiffness K ≫ κ_B the residual shrinks by κ/(K + 2κ) per doubling: small, but growing
     with κ — not a block."""
