@@ -12,9 +12,12 @@ __version__ = "0.1.0"
 # Three thread pools take turns on few cores: numba's OpenMP (element kernels), ipctk's TBB (contact, CCD)
 # and the OpenBLAS under CHOLMOD. By default OpenMP and OpenBLAS workers keep spinning after each parallel
 # region and steal the cores the next phase needs (measured on 2 cores, bunny_700: 12.4 s -> 10.0 s with
-# these two settings). They take effect only if set before those libraries load; a user's own value wins.
+# these two settings). OpenBLAS workers spin 2^18 cycles (0.1 ms) before sleeping: long enough to stay awake
+# between the thousands of BLAS calls of one CHOLMOD factorisation (idp.solver.cholmod_blas; with 2^4 they slept
+# between calls and two threads gained nothing), short enough to be idle when the next phase starts. They take
+# effect only if set before those libraries load; a user's own value wins.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-_os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")
+_os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "18")
 
 
 def _fix_mmap_threshold() -> None:

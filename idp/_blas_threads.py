@@ -6,7 +6,8 @@ workers spinning after each call, taking the cores the next numba or TBB region 
 ``OPENBLAS_THREAD_TIMEOUT`` for that, but OpenBLAS reads it only when it loads, so it has no effect when numpy is
 imported before idp — the usual order in user code and in every test. Measured on the 2-core AMD EPYC, the Fig. 10
 bar, 4 steps, `import numpy` first: element assembly 29.6 → 17.5 ms per Newton iteration, CCD 6.5 → 4.6 ms, with
-this limit (the same as importing idp first). CHOLMOD's BLAS (cvxopt's own OpenBLAS) is not touched here.
+this limit (the same as importing idp first). CHOLMOD's calls, routed to scipy's OpenBLAS
+(:mod:`idp.solver.cholmod_blas`), widen scipy's pool again for their own duration where the factor is large.
 """
 
 from __future__ import annotations

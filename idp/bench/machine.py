@@ -98,6 +98,19 @@ def _cholmod_version() -> str | None:
     return f"bundled with cvxopt {_version('cvxopt') or '?'} (version not exposed)"
 
 
+def _cholmod_blas() -> str | None:
+    """Which BLAS CHOLMOD's dense kernels run on in a process like this one (routing is tried as a run would)."""
+    try:
+        import numba
+
+        from idp.solver import cholmod_blas
+
+        cholmod_blas.route_cholmod_blas(numba.get_num_threads())
+        return cholmod_blas.STATUS
+    except ImportError:
+        return None
+
+
 def describe(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
     """The machine description (see the module docstring)."""
     try:
@@ -111,6 +124,7 @@ def describe(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
     versions: dict[str, str | None] = {"python": platform.python_version()}
     versions.update({name: _version(name) for name in PACKAGES})
     versions["cholmod"] = _cholmod_version()
+    versions["cholmod_blas"] = _cholmod_blas()
     return {
         **cpu,
         "platform": f"{platform.system()} {platform.release()} {platform.machine()}",

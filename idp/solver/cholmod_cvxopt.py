@@ -49,11 +49,13 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 import cvxopt
+import numba
 import numpy as np
 import scipy.sparse as sp
 from cvxopt import amd, cholmod
 
 from idp.errors import SolverError
+from idp.solver.cholmod_blas import cholmod_threads, route_cholmod_blas, worth_threads
 from idp.solver.linear import (
     LinearSolver,
     NotPositiveDefinite,
@@ -109,6 +111,10 @@ def _options(**values: object) -> Iterator[None]:
         cholmod.options.update(saved)
 
 
+#: Without a memory guard's symbolic counts, factors of at least this many unknowns run CHOLMOD's calls threaded.
+THREADED_MIN_DOFS = 40_000
+
+
 class CholmodSolver(LinearSolver):
     """Supernodal CHOLMOD Cholesky (cvxopt) with METIS vertex-graph ordering and symbolic reuse."""
 
@@ -118,6 +124,7 @@ class CholmodSolver(LinearSolver):
         """``use_metis``: None = if pymetis imports; ``reuse_ordering``: keep the previous
         ordering when a changed pattern has the same size (off: see the module docstring)."""
         super().__init__(dofs_per_node)
+        route_cholmod_blas(numba.get_num_threads())  # CHOLMOD's dense kernels on scipy's threaded OpenBLAS
         self.use_metis = have_pymetis() if use_metis is None else bool(use_metis)
         self.reuse_ordering = bool(reuse_ordering)
         self._pattern = PatternCache()
@@ -131,6 +138,7 @@ class CholmodSolver(LinearSolver):
         self._perm: np.ndarray | None = None
         self._keys: np.ndarray | None = None  # sorted keys col*n + row of the analysed lower triangle
         self._factored = False
+        self._threaded = False  # CHOLMOD's calls on the threaded BLAS pool (large factors only)
         self.union_growth = 1.3  # analyse the union of old and new patterns while it stays this small
         self._ordering_kind: str | None = None  # "metis" or "amd": the last comparison's choice
         self._since_ordering_check = 0  # analyses since that comparison
@@ -164,6 +172,9 @@ class CholmodSolver(LinearSolver):
                 G = sp.csr_matrix((np.ones(keys.size), (row, col)), shape=(n, n))
                 G = (G + G.T).tocsr()
             self._check_memory(None if G is None else G.indptr, None if G is None else G.indices, n, perm)
+        # threaded BLAS only for factors with large dense blocks (see idp.solver.cholmod_blas.worth_threads)
+        last = None if self.memory_guard is None or perm is None else self.memory_guard.last
+        self._threaded = worth_threads(last.counts.max_update) if last is not None else n >= THREADED_MIN_DOFS
         G = None
         if S is None:
             S = cvxopt.spmatrix(cvxopt.matrix(vals), cvxopt.matrix(row), cvxopt.matrix(col), (n, n))
@@ -287,7 +298,7 @@ class CholmodSolver(LinearSolver):
             t0 = time.perf_counter()
         self.n = n
         try:
-            with _options(supernodal=2):
+            with _options(supernodal=2), cholmod_threads(self._threaded):
                 cholmod.numeric(self._S, self._F)
         except ArithmeticError as exc:
             col = exc.args[0] if exc.args else "?"
@@ -304,7 +315,8 @@ class CholmodSolver(LinearSolver):
         b = self._check_rhs(b)
         t0 = time.perf_counter()
         B = cvxopt.matrix(np.asfortranarray(b.reshape(self.n, -1)))
-        cholmod.solve(self._F, B)
+        with cholmod_threads(self._threaded):
+            cholmod.solve(self._F, B)
         x = np.array(B).reshape(b.shape)
         self.stats["solve"] += time.perf_counter() - t0
         if not np.isfinite(x).all():
