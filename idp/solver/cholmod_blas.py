@@ -133,6 +133,8 @@ def _check_factorisation() -> bool:
     import cvxopt
     from cvxopt import cholmod
 
+    from idp.solver.cholmod_cvxopt import _options  # (that module imports this one: imported here, at call time)
+
     m = 20  # a 2D grid Laplacian, shifted: 400 unknowns, AMD's separators give supernodes that update each other
     T = 2.0 * np.eye(m) - np.eye(m, k=1) - np.eye(m, k=-1)
     A = np.kron(T, np.eye(m)) + np.kron(np.eye(m), T) + 0.5 * np.eye(m * m)
@@ -142,16 +144,11 @@ def _check_factorisation() -> bool:
         A[rows, cols], cvxopt.matrix(rows.astype(np.int64)), cvxopt.matrix(cols.astype(np.int64)), (n, n)
     )
     b = np.random.default_rng(0).standard_normal(n)
-    saved = dict(cholmod.options)
-    cholmod.options["supernodal"] = 2
-    try:
+    with _options(supernodal=2):
         F = cholmod.symbolic(S, uplo="L")
         cholmod.numeric(S, F)
         x = cvxopt.matrix(b.copy())
         cholmod.solve(F, x)
-    finally:
-        cholmod.options.clear()
-        cholmod.options.update(saved)
     # A's condition number is below 17 (eigenvalues in [0.5, 8.5]): a small residual means the right solution
     residual = A @ np.array(x).ravel() - b
     return bool(np.linalg.norm(residual) <= 1e-12 * np.linalg.norm(b))
@@ -201,14 +198,18 @@ def route_cholmod_blas(threads: int) -> bool:
         _write_pointers(plan)
         set_threads = scipy_blas.scipy_openblas_set_num_threads
         set_threads.argtypes = [ctypes.c_int]
-        set_threads(_threads)
-        if not _check_factorisation():
+        get_threads = scipy_blas.scipy_openblas_get_num_threads
+        get_threads.restype = ctypes.c_int
+        before = get_threads()
+        set_threads(_threads)  # the check runs the pool as CHOLMOD's threaded calls will
+        try:
+            ok = _check_factorisation()
+        finally:
+            set_threads(before)  # scipy's pool as the process had it
+        if not ok:
             _write_pointers(undo)
             STATUS = "check factorisation disagreed: routing undone"
             return False
-        get_threads = scipy_blas.scipy_openblas_get_num_threads
-        get_threads.restype = ctypes.c_int
-        set_threads(1)
         _set_threads, _get_threads = set_threads, get_threads
     except (OSError, ValueError, AttributeError, IndexError, struct.error) as exc:
         STATUS = f"not routed: {exc}"
@@ -219,6 +220,10 @@ def route_cholmod_blas(threads: int) -> bool:
     return True
 
 
+#: The smallest largest-update block (entries; 1000 rows below a supernode) for which CHOLMOD's calls run threaded.
+THREADED_MIN_UPDATE = 1_000_000
+
+
 def worth_threads(max_update: int) -> bool:
     """Whether a factor whose largest supernodal update block has ``max_update`` entries gains from the threaded pool.
 
@@ -226,10 +231,6 @@ def worth_threads(max_update: int) -> bool:
     (max_update 1.55 M) 0.329 → 0.250 s; bunny_3376 (0.37–0.48 M) 42 → 41 ms, within the noise; the Fig. 12 cat
     (0.07–0.14 M) 16.8 → 17.0 ms; and whole bunny_700 runs (small blocks) 5–10 % slower numeric time threaded."""
     return max_update >= THREADED_MIN_UPDATE
-
-
-#: The smallest largest-update block (entries; 1000 rows below a supernode) for which CHOLMOD's calls run threaded.
-THREADED_MIN_UPDATE = 1_000_000
 
 
 @contextmanager

@@ -341,8 +341,7 @@ class DirichletTargets:
             elif self.kappa < self.kappa_max:
                 self._last_gain = gain
                 self._last_residual = pen
-                self.kappa = min(2.0 * self.kappa, self.kappa_max)
-                self.doublings += 1
+                self._double_kappa()
                 changed = True
             elif not in_contact and self.multiplier_updates < self.max_multiplier_updates:
                 # κ_B at its cap and nothing in contact: an elastic stiffness far above κ_B (a p-norm energy around
@@ -362,16 +361,19 @@ class DirichletTargets:
         than hold the bound vertices within the tolerance: while retries are left, κ_B is below its cap, and
         the last doubling for a snap brought the worst bound vertex at least ``min_progress`` closer."""
         if not near_converged:
-            return self._snap_residual is None or self._snap_doublings < self.max_snap_doublings
+            return self._snap_doublings < self.max_snap_doublings
         if self._snap_doublings >= self.max_snap_doublings or self.kappa >= self.kappa_max:
             return False
         if self._snap_residual is not None and worst > (1.0 - self.min_progress) * self._snap_residual:
             return False
         self._snap_residual = worst
         self._snap_doublings += 1
+        self._double_kappa()
+        return True
+
+    def _double_kappa(self) -> None:
         self.kappa = min(2.0 * self.kappa, self.kappa_max)
         self.doublings += 1
-        return True
 
     @property
     def settled(self) -> bool:
