@@ -285,12 +285,19 @@ def main(argv: list[str] | None = None) -> int:
                 cmd.append(str(work))
             from idp.bench.reference_run import run_measured
 
-            wall, rss, rc = run_measured(cmd, env, args.output / f"{which}.log")
+            run_env, blas = env, None
+            if which == "reference":
+                from idp.bench.reference_blas import choose_reference_blas
+
+                run_env, blas = choose_reference_blas(env)  # kernels for this CPU (idp/bench/reference_blas.py)
+            wall, rss, rc = run_measured(cmd, run_env, args.output / f"{which}.log")
         if not work.exists():
             results[which] = f"no run in {work}"
             continue
         rec = measure_reference(work, rest, tets) if which == "reference" else measure_idp(work, rest, tets)
         rec.update(process_wall_s=wall, peak_rss_mb=rss, exit_code=rc)
+        if which == "reference" and not args.measure_only:
+            rec["blas"] = blas
         results[which] = rec
         (args.output / "arm_vs_reference.json").write_text(json.dumps(results, indent=1))
     (args.output / "arm_vs_reference.md").write_text(table(results, at))

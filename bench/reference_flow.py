@@ -153,7 +153,11 @@ def run_once(which: str, name: str, case: FlowCase, reference: Path, data: Path,
     work.mkdir(parents=True)
     result = work / "result.json"
     env = dict(os.environ, OMP_NUM_THREADS="2", OPENBLAS_NUM_THREADS="2", PYTHONDONTWRITEBYTECODE="1")
+    blas = None
     if which == "reference":
+        from idp.bench.reference_blas import choose_reference_blas
+
+        env, blas = choose_reference_blas(env)  # its OpenBLAS on kernels for this CPU (idp/bench/reference_blas.py)
         cmd = [sys.executable, "-B", __file__, "--child-reference", name, str(reference), str(data), str(work)]
     else:
         scene = HERE.parent / "idp" / "scenes" / "paper" / case.scene
@@ -166,6 +170,8 @@ def run_once(which: str, name: str, case: FlowCase, reference: Path, data: Path,
         raise RuntimeError(f"{which} run of {name} failed (rc {rc}):\n{tail}")
     rec = json.loads(result.read_text())
     rec.update(process_wall_s=wall, peak_rss_mb=rss)
+    if blas is not None:
+        rec["blas"] = blas
     rec["measure"], rec["ratio"] = growth(Path(rec.pop("first")), Path(rec.pop("last")))
     return rec
 

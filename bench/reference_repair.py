@@ -114,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     work = args.output.resolve()
     work.mkdir(parents=True, exist_ok=False)
     env = dict(os.environ, OMP_NUM_THREADS="2", OPENBLAS_NUM_THREADS="2", PYTHONDONTWRITEBYTECODE="1")
+    from idp.bench.reference_blas import choose_reference_blas
+
+    env, blas = choose_reference_blas(env)  # its OpenBLAS on kernels for this CPU (idp/bench/reference_blas.py)
     cmd = [sys.executable, "-B", __file__, "--child", str(reference), str(data), args.seq, str(args.frames), str(work)]
     wall, peak_mb, rc = run_measured(cmd, env, work / "log.txt")
     result = work / "result.json"
@@ -129,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
         faces = np.asarray(d["faces"], dtype=np.int32)
     np.savez_compressed(work / f"{args.seq}_reference.npz", vertices=np.stack(frames), faces=faces)
     rec.update(
+        blas=blas,
         process_wall_s=wall,
         peak_rss_mb=peak_mb,
         frames=args.frames,

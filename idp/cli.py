@@ -558,6 +558,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--runs", type=int, help="runs of each code per scene (default: 1 quick tier, 2 full tier)")
     b.add_argument("--reference-timeout", type=float, help="seconds after which a reference run is abandoned")
+    b.add_argument(
+        "--reference-blas",
+        default="auto",
+        metavar="auto|as-is|CORE",
+        help="OpenBLAS kernels of the reference: 'auto' (default) sets OPENBLAS_CORETYPE when its OpenBLAS falls "
+        "back to generic kernels on a CPU it does not know, 'as-is' never, or a core name (SkylakeX, Haswell, ...)",
+    )
     b.set_defaults(func=_cmd_bench)
 
     bt = sub.add_parser(

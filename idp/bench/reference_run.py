@@ -24,6 +24,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from idp.bench.reference_blas import choose_reference_blas
+
 
 @dataclass(frozen=True)
 class ReferenceCase:
@@ -185,16 +187,23 @@ def run_measured(cmd: list[str], env: dict[str, str], log: Path) -> tuple[float,
 
 
 def run_reference(
-    reference: Path, case: ReferenceCase, work_dir: Path, data_dir: Path | None, timeout: float | None = None
+    reference: Path,
+    case: ReferenceCase,
+    work_dir: Path,
+    data_dir: Path | None,
+    timeout: float | None = None,
+    blas: str = "auto",
 ) -> dict:
     """Run one reference case in ``work_dir`` (kept: ``run.log``, the authors' verbose log; the frames they
-    write are removed) and return its figures, its timing tree and the wall time seen from here."""
+    write are removed) and return its figures, its timing tree and the wall time seen from here. ``blas``: which
+    OpenBLAS kernels it runs on (:func:`idp.bench.reference_blas.choose_reference_blas`; recorded as ``blas``)."""
     if work_dir.exists():
         shutil.rmtree(work_dir)
     work_dir.mkdir(parents=True)
     env = dict(os.environ, PYTHON=sys.executable, REF_RUN_DIR=str(work_dir))
     if data_dir is not None:
         env["IDP_DATA"] = str(data_dir)
+    env, blas_choice = choose_reference_blas(env, blas)
     t0 = time.perf_counter()
     proc = subprocess.run(
         ["bash", str(reference / "run.sh"), case.script, *case.args],
@@ -218,6 +227,7 @@ def run_reference(
         elif p.is_dir():
             shutil.rmtree(p)
     result["outer_wall"] = outer_wall
+    result["blas"] = blas_choice
     result["timing_tree"] = [list(node) for node in tree]
     result["per_iteration_split"] = reference_split(tree, int(result.get("newton_its", 0)))
     return result
@@ -249,4 +259,5 @@ def compare(idp_runs: list[dict], ref_runs: list[dict], cage_volume: float | Non
         "idp_peak_rss_mb": max(r["peak_rss_mb"] for r in idp_runs),
         "reference_peak_rss_mb": max(float(r["peak_rss_mb"]) for r in ref_runs),
         "reference_split": ref.get("per_iteration_split", {}),
+        "reference_blas": ref.get("blas"),
     }

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from idp.bench.machine import describe, summary
 from idp.bench.reference import PAPER, REFERENCE
+from idp.bench.reference_blas import describe_choice
 from idp.bench.reference_run import REFERENCE_CASES, compare, find_reference, run_reference
 
 
@@ -273,6 +274,9 @@ def _same_run_rows(results: list[dict], compared: dict) -> list[str]:
             f"| {c['idp_newton_iterations']} / {c['reference_newton_iterations']} "
             f"| {fills} / {rfill} | {c['idp_peak_rss_mb']:.0f} / {c['reference_peak_rss_mb']:.0f} |"
         )
+    choices = {describe_choice(c["reference_blas"]) for c in compared.values() if c.get("reference_blas")}
+    if choices:
+        rows += ["", "BLAS: " + "; ".join(sorted(choices)) + " (idp/bench/reference_blas.py)"]
     return rows
 
 
@@ -373,7 +377,14 @@ def _run_pairs(name: str, out: Path, runs: int, reference: Path | None, args) ->
         if unavailable is None and case is not None and reference is not None:
             work = out / "reference" / name / f"run{i + 1}"
             try:
-                ref = run_reference(reference, case, work, find_data_dir(), timeout=args.reference_timeout)
+                ref = run_reference(
+                    reference,
+                    case,
+                    work,
+                    find_data_dir(),
+                    timeout=args.reference_timeout,
+                    blas=getattr(args, "reference_blas", "auto"),
+                )
             except (RuntimeError, ValueError, subprocess.TimeoutExpired) as exc:
                 print(f"idp bench: {exc}", file=sys.stderr)
                 unavailable = "reference run failed (see stderr)"
@@ -381,7 +392,7 @@ def _run_pairs(name: str, out: Path, runs: int, reference: Path | None, args) ->
             ref_runs.append(ref)
             print(
                 f"  reference ({case.command}): {float(ref['wall_s']):.1f} s, {ref['newton_its']} Newton its, "
-                f"peak {float(ref['peak_rss_mb']):.0f} MB",
+                f"peak {float(ref['peak_rss_mb']):.0f} MB; {describe_choice(ref.get('blas'))}",
                 flush=True,
             )
     if not idp_runs:
