@@ -4,9 +4,9 @@ OpenBLAS built with ``DYNAMIC_ARCH`` picks its kernels from the CPU model when i
 the CPU does not know the model and falls back to its generic SSE3 kernels ("Prescott"). The prebuilt reference
 links Debian 12's OpenBLAS 0.3.21, which on a 2-core Emerald Rapids Xeon VM (family 6, model 207; AVX-512) does
 exactly that, while idp's CHOLMOD runs on scipy's OpenBLAS 0.3.30, which picks its SkylakeX kernels there
-(idp/solver/cholmod_blas.py). Measured on that VM, one numeric factorisation of a bunnyx30_13K Newton matrix took
-0.69 s on Prescott kernels against 0.35 s on SkylakeX ones: a side-by-side ratio would then measure the two
-OpenBLAS releases' CPU tables, not the two codes.
+(idp/solver/cholmod_blas.py). Measured on that VM, the reference's bunnyx30_13K run took 1,385 s on its fallback
+kernels (linear solve 2.17 s per Newton iteration) and 1,018 s with ``OPENBLAS_CORETYPE=SkylakeX`` (1.26 s): a
+side-by-side ratio would otherwise measure the two OpenBLAS releases' CPU tables, not the two codes.
 
 So before a reference run the bench asks the reference's OpenBLAS (loaded in a small child process with the
 reference's environment) which kernels it picks. When that is a generic fallback on a CPU with AVX2 and FMA (which
