@@ -197,6 +197,15 @@ class ElasticEnergy:
             return np.eye(self.dim)
         return self._transform.copy()
 
+    def _set_transform(self, T: np.ndarray) -> None:
+        """Make ``T`` the rest transform; Dm_inv is recomputed only when it changes (every mutator of the base frames
+        updates Dm_inv itself, so an unchanged T leaves it right: a growth script holds its last scale for the
+        rest of a run, and at bunnyx30_13K each recomputation costs ≈ 0.06 s)."""
+        if self._transform is not None and self._transform.shape == T.shape and np.array_equal(self._transform, T):
+            return
+        self._transform = T
+        self._update_rest_frames()
+
     def _update_rest_frames(self) -> None:
         """Dm_inv = inv(T Dm_base) (T = identity when unset)."""
         Dm = self._Dm_base if self._transform is None else self._transform @ self._Dm_base
@@ -212,8 +221,7 @@ class ElasticEnergy:
             s = np.full(self.dim, float(s))
         if s.shape != (self.dim,) or not np.all(np.isfinite(s) & (s > 0)):
             raise ValueError(f"rest scale must be > 0, scalar or shape ({self.dim},), got {scale!r}")
-        self._transform = np.diag(s)
-        self._update_rest_frames()
+        self._set_transform(np.diag(s))
 
     def set_rest_transform(self, transform: np.ndarray) -> None:
         """Rest frames Dm = T Dm_base with T (d,d) shared or (m,d,d) per element (anisotropic / per-region scale).
@@ -231,8 +239,7 @@ class ElasticEnergy:
         if bad.size:
             where = "" if T.ndim == 2 else f" of element {int(bad[0])}"
             raise ValueError(f"rest transform{where} must have det > 0, got {np.atleast_1d(det)[bad[0]]:.3e}")
-        self._transform = T
-        self._update_rest_frames()
+        self._set_transform(T)
 
     def bake(self, x: np.ndarray) -> None:
         """Make the shape ``x`` the rest shape (§4.5): base frames = current Ds, volume weights = current

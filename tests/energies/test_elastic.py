@@ -567,6 +567,38 @@ def test_deform_rest_frames_keeps_the_transform_on_top(d: int) -> None:
         E.deform_rest_frames(G)
 
 
+@pytest.mark.parametrize("d", DIMS)
+def test_an_unchanged_rest_transform_keeps_frames_that_match_it(d: int) -> None:
+    """Setting the rest scale or transform it already has skips the recomputation, after any mutator of the base
+    frames too: Dm_inv always equals inv(T Dm_base) (growth scripts set their held scale every step)."""
+    X, T = box_mesh(d)
+    rng = np.random.default_rng(12)
+    E = ElasticEnergy("neo_hookean", X, T, 1e4, 0.3)
+    s = np.array([1.2, 0.9, 1.4][:d])
+
+    def expected() -> np.ndarray:
+        return np.linalg.inv(E.rest_transform @ E.base_rest_frames)
+
+    E.set_rest_scale(s)
+    first = E.Dm_inv
+    E.set_rest_scale(s.copy())
+    assert E.Dm_inv is first  # not recomputed
+    E.set_rest_transform(np.diag(s))
+    assert E.Dm_inv is first
+    which = np.array([0, 2])
+    E.deform_rest_frames(np.stack([np.eye(d) + 0.1 * rng.normal(size=(d, d)) for _ in which]), which)
+    E.set_rest_scale(s)
+    np.testing.assert_allclose(E.Dm_inv, expected(), rtol=1e-12, atol=1e-14)
+    x = X + 0.05 * rng.normal(size=X.shape)
+    E.bake(x)  # the transform is reset: the same scale again is a change
+    E.set_rest_scale(s)
+    np.testing.assert_array_equal(E.rest_transform, np.diag(s))
+    np.testing.assert_allclose(E.Dm_inv, expected(), rtol=1e-12, atol=1e-14)
+    E.set_rest_scale(1.1 * s)  # a new scale is applied
+    np.testing.assert_allclose(E.Dm_inv, expected(), rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(E.rest_transform, np.diag(1.1 * s))
+
+
 def test_set_material_changes_the_stiffness() -> None:
     X, T = box_mesh(3)
     x = deform(X, T, "perturb", np.random.default_rng(11))
