@@ -19,11 +19,12 @@ reference run.
 from __future__ import annotations
 
 import ctypes
-import glob
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+from idp.solver.cholmod_blas import scipy_openblas_path
 
 #: The cores OpenBLAS falls back to when it does not recognise a CPU (or on old ones): SSE2/SSE3 kernels only.
 GENERIC_CORES = frozenset({"prescott", "core2", "katmai", "northwood", "banias", "penryn", "dunnington", "atom"})
@@ -64,12 +65,10 @@ def reference_core(env: dict[str, str] | None = None) -> str | None:
 def idp_core() -> str | None:
     """The kernels scipy's OpenBLAS picks here (the BLAS idp routes CHOLMOD to); None when it is not found."""
     try:
-        import scipy
-
-        libs = glob.glob(str(Path(scipy.__file__).parent.parent / "scipy.libs" / "libscipy_openblas*.so"))
-        if len(libs) != 1:
+        path = scipy_openblas_path()
+        if path is None:
             return None
-        get = ctypes.CDLL(libs[0]).scipy_openblas_get_corename
+        get = ctypes.CDLL(path).scipy_openblas_get_corename
         get.restype = ctypes.c_char_p
         return get().decode()
     except (OSError, AttributeError, ImportError):

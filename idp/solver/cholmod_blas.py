@@ -154,6 +154,14 @@ def _check_factorisation() -> bool:
     return bool(np.linalg.norm(residual) <= 1e-12 * np.linalg.norm(b))
 
 
+def scipy_openblas_path() -> str | None:
+    """The OpenBLAS shipped in scipy's wheel (its symbols carry a ``scipy_`` prefix); None when not exactly one."""
+    import scipy
+
+    libs = glob.glob(str(Path(scipy.__file__).parent.parent / "scipy.libs" / "libscipy_openblas*.so"))
+    return libs[0] if len(libs) == 1 else None
+
+
 def route_cholmod_blas(threads: int) -> bool:
     """Route CHOLMOD's BLAS to scipy's threaded OpenBLAS (once per process); ``threads``: the pool size for CHOLMOD's
     calls. Returns whether CHOLMOD now uses it; :data:`STATUS` says why not."""
@@ -169,15 +177,14 @@ def route_cholmod_blas(threads: int) -> bool:
         return False
     try:
         import cvxopt.cholmod  # noqa: F401  (loads libcholmod and cvxopt's OpenBLAS)
-        import scipy
 
         cholmod_lib = _load_bias("libcholmod")
         ours = _load_bias("cvxopt.libs/libopenblas")
-        scipy_libs = glob.glob(str(Path(scipy.__file__).parent.parent / "scipy.libs" / "libscipy_openblas*.so"))
-        if cholmod_lib is None or ours is None or len(scipy_libs) != 1:
+        scipy_lib = scipy_openblas_path()
+        if cholmod_lib is None or ours is None or scipy_lib is None:
             STATUS = "cvxopt's CHOLMOD / OpenBLAS or scipy's OpenBLAS not found as expected"
             return False
-        scipy_blas = ctypes.CDLL(scipy_libs[0])
+        scipy_blas = ctypes.CDLL(scipy_lib)
         bundled = ctypes.CDLL(ours[0])
         path, bias = cholmod_lib
         offsets = _got_slots(path, ROUTINES)
