@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import importlib.util
 import logging
 import os
 import shutil
@@ -58,6 +59,7 @@ class Kernel:
 
 _E = "idp.energies._elastic_kernels"
 _CB = "idp.contact.compiled_barrier"
+_LP = "idp.solver.lower_pattern"
 
 #: the elastic values copied onto the contact pattern once it has grown beyond the elastic one (a run whose contacts
 #: never need a coupling the elastic pattern lacks does not call it)
@@ -86,6 +88,16 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel("idp.solver.symbolic", "_supernodes", "(int64[::1], int64[::1], int64[::1], int64)", 0.2),
         # the input's surface checks (components of boundary loops, face fans, surface parts)
         Kernel("idp.mesh.components", "_component_labels", "(int64, int64[::1], int64[::1], int64[::1])", 0.3),
+    ),
+    # the CHOLMOD backend's pattern changes (idp.solver.lower_pattern): every run factors a first pattern; the merge
+    # with the analysed pattern from the second on, the ordering's graphs with METIS, the memory count's pattern
+    "cholmod": (
+        Kernel(_LP, "lower_columns", "(int64[::1], Array(int32, 1, 'C', readonly=True))", 0.2),
+        Kernel(_LP, "count_new_entries", "(int64[::1], int32[::1], int64[::1], int32[::1])", 0.2, alternative=True),
+        Kernel(_LP, "subset_mask", "(int64[::1], int32[::1], int64[::1], int32[::1])", 0.2, alternative=True),
+        Kernel(_LP, "union_columns", "(int64[::1], int32[::1], int64[::1], int32[::1], int64)", 0.4, alternative=True),
+        Kernel(_LP, "_symmetric_from_lower", "(int64[::1], int32[::1])", 0.3, alternative=True),
+        Kernel(_LP, "vertex_graph_from_lower", "(int64[::1], int32[::1], int64)", 0.3, alternative=True),
     ),
     # deformable solids (tetrahedra in 3D, triangles in 2D): elasticity and the inversion filter
     "solid": (
@@ -238,6 +250,8 @@ def scene_groups(scene: Any) -> list[str]:
     """The :data:`GROUPS` a :class:`~idp.scene.schema.Scene` will call (a staged scene: over all its stages)."""
     objects = list(scene.objects) + [o for stage in scene.stages for o in stage.add]
     groups = ["solver"]
+    if scene.solver.linear_solver != "scipy" and importlib.util.find_spec("cvxopt") is not None:
+        groups.append("cholmod")
     if any(o.kind == "deformable" for o in objects):
         groups.append("solid")
     if any(o.kind == "shell" and o.shell is not None and o.shell.youngs_modulus > 0 for o in objects):

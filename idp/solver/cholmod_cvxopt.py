@@ -228,8 +228,9 @@ class CholmodSolver(LinearSolver):
         analysed pattern (CHOLMOD then factors with explicit zeros), else analyse the union of the two
         patterns (so couplings that come and go stop triggering analyses), or the new one alone when the
         union would grow too large. (Merge walks over sorted columns: :mod:`idp.solver.lower_pattern`.)"""
-        rows = indices if indices.dtype == np.int32 else indices.astype(np.int32)
-        lptr, sel, diagonal = lower_columns(np.asarray(indptr, dtype=np.int64), rows)
+        rows = indices.view() if indices.dtype == np.int32 else indices.astype(np.int32)
+        rows.flags.writeable = False  # read-only like the contact pattern's own: one compiled specialisation
+        lptr, sel, diagonal = lower_columns(np.array(indptr, dtype=np.int64), rows)
         if n > 0 and not diagonal:
             raise NotPositiveDefinite("matrix has a structurally missing diagonal entry")
         lrow, vals = rows[sel], data[sel]

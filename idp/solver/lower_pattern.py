@@ -52,7 +52,9 @@ def lower_columns(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, 
 
 
 @numba.njit(cache=True)
-def count_new_entries(lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray) -> int:  # pragma: no cover
+def count_new_entries(
+    lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray
+) -> int:  # pragma: no cover
     """How many entries of the column pattern (lptr, lrow) are missing from (aptr, arow) (same number of columns,
     rows sorted in each column)."""
     missing = 0
@@ -70,7 +72,9 @@ def count_new_entries(lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow
 
 
 @numba.njit(cache=True)
-def subset_mask(lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray) -> np.ndarray:  # pragma: no cover
+def subset_mask(
+    lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray
+) -> np.ndarray:  # pragma: no cover
     """Which entries of (aptr, arow) the pattern (lptr, lrow) fills, as a mask in their order (every entry of
     (lptr, lrow) must be present: see :func:`count_new_entries`)."""
     mask = np.zeros(arow.size, np.bool_)
@@ -163,7 +167,9 @@ def symmetric_from_lower(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarray
 
 
 @numba.njit(cache=True)
-def vertex_graph_from_lower(aptr: np.ndarray, arow: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+def vertex_graph_from_lower(
+    aptr: np.ndarray, arow: np.ndarray, d: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """(xadj, adjncy) of the vertex graph of the symmetric pattern whose lower triangle has the columns
     (aptr, arow), vertex v owning DOFs d·v .. d·v + d − 1: vertices adjacent when any of their DOFs couple, no
     self loops, neighbours sorted (the graph :func:`idp.solver.linear.vertex_graph` makes of the full pattern)."""
@@ -199,5 +205,11 @@ def vertex_graph_from_lower(aptr: np.ndarray, arow: np.ndarray, d: int) -> tuple
             fill[vc] += 1
             adjncy[fill[vr]] = vc
             fill[vr] += 1
-        adjncy[start : fill[vc]].sort()
+        for a in range(start + 1, fill[vc]):  # insertion sort of a short run (numba's sort compiles for seconds)
+            v = adjncy[a]
+            b = a - 1
+            while b >= start and adjncy[b] > v:
+                adjncy[b + 1] = adjncy[b]
+                b -= 1
+            adjncy[b + 1] = v
     return xadj, adjncy
