@@ -93,8 +93,13 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
     # with the analysed pattern from the second on, the ordering's graphs with METIS, the memory count's pattern
     "cholmod": (
         Kernel(_LP, "lower_columns", "(int64[::1], Array(int32, 1, 'C', readonly=True))", 0.2),
-        Kernel(_LP, "count_new_entries", "(int64[::1], int32[::1], int64[::1], int32[::1])", 0.2, alternative=True),
-        Kernel(_LP, "subset_mask", "(int64[::1], int32[::1], int64[::1], int32[::1])", 0.2, alternative=True),
+        Kernel(
+            _LP,
+            "locate_entries",
+            "(int64[::1], int32[::1], int64[::1], int32[::1], boolean[::1])",
+            0.2,
+            alternative=True,
+        ),
         Kernel(_LP, "union_columns", "(int64[::1], int32[::1], int64[::1], int32[::1], int64)", 0.4, alternative=True),
         Kernel(_LP, "_symmetric_from_lower", "(int64[::1], int32[::1])", 0.3, alternative=True),
         Kernel(_LP, "vertex_graph_from_lower", "(int64[::1], int32[::1], int64)", 0.3, alternative=True),

@@ -69,9 +69,8 @@ from idp.solver.linear import (
     nested_dissection_ordering,
 )
 from idp.solver.lower_pattern import (
-    count_new_entries,
+    locate_entries,
     lower_columns,
-    subset_mask,
     symmetric_from_lower,
     union_columns,
     vertex_graph_from_lower,
@@ -238,14 +237,16 @@ class CholmodSolver(LinearSolver):
         self._sel = sel
         aptr, arow = self._aptr, self._arow
         if aptr is not None and arow is not None and self._S is not None and self._S.size[0] == n:
-            n_new = count_new_entries(lptr, lrow, aptr, arow)
+            found = np.zeros(arow.size, dtype=bool)
+            n_new = locate_entries(lptr, lrow, aptr, arow, found)
             if n_new == 0:
-                self._pos = None if lrow.size == arow.size else subset_mask(lptr, lrow, aptr, arow)
+                self._pos = None if lrow.size == arow.size else found
                 self._set_values(vals)
                 self.stats["symbolic_reuses"] += 1
                 self.stats["subset_reuses"] = self.stats.get("subset_reuses", 0) + 1
                 return
             if arow.size + n_new <= self.union_growth * lrow.size:
+                del found
                 uptr, urow, mask, new_rows, new_cols = union_columns(lptr, lrow, aptr, arow, n_new)
                 self._pos = None if urow.size == lrow.size else mask
                 del mask

@@ -19,9 +19,8 @@ import numba
 import numpy as np
 
 __all__ = [
-    "count_new_entries",
+    "locate_entries",
     "lower_columns",
-    "subset_mask",
     "symmetric_from_lower",
     "union_columns",
     "vertex_graph_from_lower",
@@ -52,10 +51,11 @@ def lower_columns(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, 
 
 
 @numba.njit(cache=True)
-def count_new_entries(
-    lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray
+def locate_entries(
+    lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray, found: np.ndarray
 ) -> int:  # pragma: no cover
-    """How many entries of the column pattern (lptr, lrow) are missing from (aptr, arow) (same number of columns,
+    """Mark in ``found`` (a bool per entry of (aptr, arow), cleared by the caller) the entries that the column
+    pattern (lptr, lrow) also has, and return how many of its entries (aptr, arow) lacks (same number of columns,
     rows sorted in each column)."""
     missing = 0
     for j in range(lptr.size - 1):
@@ -65,28 +65,11 @@ def count_new_entries(
             while p < end and arow[p] < r:
                 p += 1
             if p < end and arow[p] == r:
+                found[p] = True
                 p += 1
             else:
                 missing += 1
     return missing
-
-
-@numba.njit(cache=True)
-def subset_mask(
-    lptr: np.ndarray, lrow: np.ndarray, aptr: np.ndarray, arow: np.ndarray
-) -> np.ndarray:  # pragma: no cover
-    """Which entries of (aptr, arow) the pattern (lptr, lrow) fills, as a mask in their order (every entry of
-    (lptr, lrow) must be present: see :func:`count_new_entries`)."""
-    mask = np.zeros(arow.size, np.bool_)
-    for j in range(lptr.size - 1):
-        p, end = aptr[j], aptr[j + 1]
-        for k in range(lptr[j], lptr[j + 1]):
-            r = lrow[k]
-            while p < end and arow[p] < r:
-                p += 1
-            mask[p] = True
-            p += 1
-    return mask
 
 
 @numba.njit(cache=True)

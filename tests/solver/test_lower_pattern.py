@@ -8,9 +8,8 @@ import scipy.sparse as sp
 
 from idp.solver.linear import vertex_graph
 from idp.solver.lower_pattern import (
-    count_new_entries,
+    locate_entries,
     lower_columns,
-    subset_mask,
     symmetric_from_lower,
     union_columns,
     vertex_graph_from_lower,
@@ -69,8 +68,10 @@ def test_merge_walks_match_set_operations(seed: int) -> None:
     aptr, arow = _lower(old)
     lptr, lrow = _lower(new)
     ka, kl = _keys(aptr, arow), _keys(lptr, lrow)
-    n_new = count_new_entries(lptr, lrow, aptr, arow)
+    found = np.zeros(arow.size, dtype=bool)
+    n_new = locate_entries(lptr, lrow, aptr, arow, found)
     assert n_new == np.setdiff1d(kl, ka).size > 0
+    np.testing.assert_array_equal(ka[found], np.intersect1d(ka, kl))
 
     uptr, urow, mask, new_rows, new_cols = union_columns(lptr, lrow, aptr, arow, n_new)
     ku = _keys(uptr, urow)
@@ -78,11 +79,13 @@ def test_merge_walks_match_set_operations(seed: int) -> None:
     np.testing.assert_array_equal(ku[mask], kl)  # the current entries, in their own order
     np.testing.assert_array_equal(new_cols * n + new_rows, np.setdiff1d(kl, ka))
 
-    # the new pattern inside the union: no new entry, and the mask finds each of its entries
-    assert count_new_entries(lptr, lrow, uptr, urow) == 0
-    np.testing.assert_array_equal(subset_mask(lptr, lrow, uptr, urow), mask)
-    assert count_new_entries(aptr, arow, aptr, arow) == 0
-    assert subset_mask(aptr, arow, aptr, arow).all()
+    # the new pattern inside the union: no new entry, and each of its entries found where the union's mask says
+    found = np.zeros(urow.size, dtype=bool)
+    assert locate_entries(lptr, lrow, uptr, urow, found) == 0
+    np.testing.assert_array_equal(found, mask)
+    found = np.zeros(arow.size, dtype=bool)
+    assert locate_entries(aptr, arow, aptr, arow, found) == 0
+    assert found.all()
 
 
 @pytest.mark.parametrize("seed", range(3))
