@@ -170,10 +170,58 @@ class LaplacianSmoothing(StencilTerm):
         self._K = K
         lam, V = np.linalg.eigh(K) if m else (np.zeros((0, 3)), np.zeros((0, 3, 3)))
         self._K_psd = np.einsum("mij,mj,mkj->mik", V, np.maximum(lam, 0.0), V)
+        # -L_w (n x n): value and gradient of the whole term are one sparse product, and the 9x9 blocks, constant
+        # until the weights change, are built once per (γ, project) and handed out from then on
+        self._neg_laplacian = -_laplacian_from_weights(self.triangles, w, self.num_vertices)
+        self._block_cache: tuple[float, bool, np.ndarray] | None = None
 
     def laplacian(self) -> sp.csr_matrix:
         """(n,n) L_w with the weights in use (clamped if ``clamp_negative``); the Hessian is -γ L_w ⊗ I₃."""
         return _laplacian_from_weights(self.triangles, self.edge_weights, self.num_vertices)
+
+    def _quadratic(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        """(E, ∇E) = (½ xᵀ A x, A x) per coordinate with A = -γ L_w: the sum over triangles as one product."""
+        X = positions(x, self.num_vertices)
+        AX = self.gamma * (self._neg_laplacian @ X)
+        return 0.5 * float(np.sum(X * AX)), AX.reshape(-1)
+
+    def value(self, x: np.ndarray) -> float:
+        """Total energy -γ ½ xᵀ L_w x."""
+        return self._quadratic(x)[0]
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        """Flat (n·3,) gradient -γ L_w x."""
+        return self._quadratic(x)[1]
+
+    def _blocks(self, project: bool) -> np.ndarray:
+        """(m, 9, 9) γ K_t ⊗ I₃ (K_t's PSD part if ``project``), built once for the current weights, γ and flag."""
+        cache = self._block_cache
+        if cache is None or cache[0] != self.gamma or cache[1] != project:
+            m = self.num_stencils
+            blocks = np.zeros((m, 9, 9))
+            e, g = np.zeros(m), np.zeros((m, 9))
+            if m:
+                self._kernel(np.zeros((self.num_vertices, 3)), 0, m, False, True, project, e, g, blocks)
+            cache = self._block_cache = (self.gamma, project, blocks)
+        return cache[2]
+
+    def value_gradient_hessian_groups(
+        self,
+        x: np.ndarray,
+        sink: HessianSink,
+        project: bool = True,
+        group: int = 4096,
+        skip: np.ndarray | None = None,
+    ) -> tuple[float, np.ndarray]:
+        """As ``StencilTerm``'s, with the energy and gradient from the sparse product and the Hessian blocks from
+        the cache (the sink must only read them). With ``skip`` the stencil-wise evaluation of the base class."""
+        if skip is not None:
+            return super().value_gradient_hessian_groups(x, sink, project, group, skip)
+        energy, grad = self._quadratic(x)
+        blocks = self._blocks(bool(project))
+        for a in range(0, self.num_stencils, group):
+            sink(a, blocks[a : a + group])
+        return energy, grad
 
     def _kernel(
         self,

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from finite_differences import fd_gradient, fd_hessian
 
+from idp.energies._stencil_term import scatter_gradient
 from idp.energies.term import ElementTerm
 from idp.mesh.differential import (
     LaplacianSmoothing,
@@ -160,6 +161,47 @@ def test_laplacian_smoothing_matches_finite_differences(weights: str) -> None:
     assert np.linalg.norm(H - Hf) <= 1e-7 * np.linalg.norm(H)
     # the weights come from the construction shape and are not updated by moving x
     np.testing.assert_allclose(S.element_hessians(2.0 * x, project=False), S.element_hessians(x, project=False))
+
+
+def _grouped(S: LaplacianSmoothing, x: np.ndarray, project: bool, skip=None) -> tuple[float, np.ndarray, np.ndarray]:
+    """(energy, gradient, all blocks) from ``value_gradient_hessian_groups`` in groups of 7 stencils."""
+    got = np.full((S.num_stencils, 9, 9), np.nan)
+
+    def sink(first: int, blocks: np.ndarray) -> None:
+        got[first : first + blocks.shape[0]] = blocks
+
+    e, g = S.value_gradient_hessian_groups(x, sink, project=project, group=7, skip=skip)
+    return e, g, got
+
+
+@pytest.mark.parametrize("weights", ["cotangent", "area"])
+def test_laplacian_smoothing_grouped_path_equals_the_stencil_sums(weights: str) -> None:
+    """The sparse energy/gradient and the cached blocks equal the per-triangle evaluation, also after the weights
+    and γ change (the cache follows them) and with skipped stencils (the stencil-wise path)."""
+    rng = np.random.default_rng(8)
+    X, T = _flat(4, 0.15, seed=2)
+    X[:, 2] = 0.1 * np.cos(2 * X[:, 1])
+    S = LaplacianSmoothing(X, T, 0.8, weights=weights)
+    x = X + 0.05 * rng.normal(size=X.shape)
+    for step in range(3):
+        for project in (True, False):
+            e, g, blocks = _grouped(S, x, project)
+            per_triangle = S.element_energies(x)
+            assert e == pytest.approx(per_triangle.sum(), rel=1e-12)
+            assert S.value(x) == pytest.approx(per_triangle.sum(), rel=1e-12)
+            stencil_grad = scatter_gradient(S.element_dofs(), S._run(x, True, False, False)[1], x.size)
+            np.testing.assert_allclose(g, stencil_grad, atol=1e-13 * np.abs(stencil_grad).max())
+            np.testing.assert_array_equal(blocks, S.element_hessians(x, project=project))
+        if step == 0:
+            S.set_weights(x)  # new weights: new blocks
+        else:
+            S.gamma = 2.0  # new γ: new blocks
+        x = x + 0.05 * rng.normal(size=X.shape)
+    skip = np.zeros(S.num_stencils, dtype=bool)
+    skip[:5] = True
+    e, g, blocks = _grouped(S, x, True, skip)
+    assert e == pytest.approx(S.element_energies(x)[5:].sum(), rel=1e-12)
+    assert np.isnan(blocks[:5]).all() and not np.isnan(blocks[5:]).any()
 
 
 def test_area_weights_are_the_initial_areas_and_give_psd_blocks() -> None:
