@@ -60,6 +60,7 @@ class Kernel:
 _E = "idp.energies._elastic_kernels"
 _CB = "idp.contact.compiled_barrier"
 _LP = "idp.solver.lower_pattern"
+_IX = "idp.contact.intersections"
 
 #: the elastic values copied onto the contact pattern once it has grown beyond the elastic one (a run whose contacts
 #: never need a coupling the elastic pattern lacks does not call it)
@@ -234,6 +235,24 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             4.0,
         ),
     ),
+    # 3D contact (either barrier): the input's crossing edge/triangle pairs (idp.contact.intersections), checked when
+    # the scene is built and, in preserve mode, by every frame's certificate
+    "surface3d": (
+        Kernel(_IX, "_count_overlaps", "(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1])", 0.3),
+        Kernel(
+            _IX,
+            "_list_pairs",
+            "(float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[:, ::1], int64[::1], int64[::1], int64[::1],"
+            " int64[::1], int64[::1], int64[::1], int64[::1])",
+            0.6,
+        ),
+        Kernel(
+            _IX,
+            "_unresolved_pairs",
+            "(float64[:, ::1], int64[:, ::1], int64[:, ::1], int64[::1], int64[::1], float64)",
+            1.0,
+        ),
+    ),
     # contact through ipctk's barrier (2D, or barrier = "ipctk"): its Hessian scattered into the Newton matrix
     "contact_ipctk": (
         _EMBED,
@@ -264,6 +283,8 @@ def scene_groups(scene: Any) -> list[str]:
     if scene.contact.enabled:
         compiled = scene.dim == 3 and scene.contact.barrier == "compiled"
         groups += ["contact3d", "ccd3d"] if compiled else ["contact_ipctk"]
+        if scene.dim == 3:
+            groups.append("surface3d")
     return groups
 
 

@@ -2,19 +2,25 @@
 
 IPC needs an intersection-free start state: a surface edge that crosses a surface triangle
 (3D) or two boundary segments that cross (2D) make the barrier undefined. Detection runs in
-three stages: a broad phase (ipctk's LBVH in 3D, a k-d tree in 2D), a vectorised float64
-orientation filter that rejects the pairs it can prove disjoint, and ipctk's robust
-predicates as the final word on every pair the filter could not reject.
-Pairs of primitives that share a vertex are never reported (they touch by construction).
+three stages: a broad phase (a compiled sweep over the bounding boxes in 3D, a k-d tree in 2D),
+a float64 orientation filter that rejects the pairs it can prove disjoint (compiled in 3D,
+vectorised in 2D), and ipctk's robust predicates as the final word on every pair the filter
+could not reject. Pairs of primitives that share a vertex are never reported (they touch by
+construction).
+
+The 3D broad phase is its own code, not the solver's contact grid (``idp.contact._broad_phase``), so the
+certificate of a run in preserve mode does not lean on what it checks. It replaced ipctk's LBVH here
+because that hands its candidates back as one Python object each: on the Fig. 12 cat's last frame
+(63 K candidates) building them and reading their ids took 80 of the function's 170 ms.
 """
 
 from __future__ import annotations
 
 import collections
 import hashlib
-from operator import attrgetter
 
 import numpy as np
+from numba import njit
 
 from idp.errors import MeshError
 
@@ -38,15 +44,6 @@ def _check(vertices: np.ndarray, cells: np.ndarray, dim: int, width: int, name: 
     return np.ascontiguousarray(v), c
 
 
-def _sign3(a, b, c, d, scale: float) -> np.ndarray:
-    """Sign of orient3d(a, b, c, d) = det[b-a, c-a, d-a] per row; 0 where unsure."""
-    u, v, w = b - a, c - a, d - a
-    det = np.einsum("ij,ij->i", u, np.cross(v, w))
-    nu, nv, nw = (np.linalg.norm(x, axis=1) for x in (u, v, w))
-    bound = _SLACK * (nu * nv * nw + scale * (nu * nv + nv * nw + nu * nw))
-    return np.where(det > bound, 1, np.where(det < -bound, -1, 0))
-
-
 def _sign2(a, b, c, scale: float) -> np.ndarray:
     """Sign of orient2d(a, b, c) = det[b-a, c-a] per row; 0 where unsure."""
     u, v = b - a, c - a
@@ -56,48 +53,210 @@ def _sign2(a, b, c, scale: float) -> np.ndarray:
     return np.where(det > bound, 1, np.where(det < -bound, -1, 0))
 
 
-def _mixed(*signs: np.ndarray) -> np.ndarray:
-    """True where the signs certainly disagree (some sure +1 and some sure -1)."""
-    s = np.stack(signs, axis=1)
-    return (s == 1).any(axis=1) & (s == -1).any(axis=1)
-
-
 def _same(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
     """True where both signs are sure and equal (both points strictly on one side)."""
     return (s1 * s2) == 1
 
 
-def _coplanar_disjoint(p, q, a, b, c, scale: float) -> np.ndarray:
-    """For (nearly) coplanar edge/triangle pairs: True where a 2D separating line proves them disjoint."""
-    n = np.cross(b - a, c - a)
-    drop = np.argmax(np.abs(n), axis=1)
-    keep = np.array([[1, 2], [0, 2], [0, 1]])[drop]  # project along the dominant normal axis
-    rows = np.arange(p.shape[0])[:, None]
-    P, Q, A, B, C = (x[rows, keep] for x in (p, q, a, b, c))
-    out = np.zeros(p.shape[0], dtype=bool)
-    for x0, x1, opp in ((A, B, C), (B, C, A), (C, A, B)):
-        side = _sign2(x0, x1, opp, scale)  # inside of this triangle edge
-        sp, sq = _sign2(x0, x1, P, scale), _sign2(x0, x1, Q, scale)
-        out |= (side != 0) & (sp == -side) & (sq == -side)
-    sa, sb, sc = (_sign2(P, Q, x, scale) for x in (A, B, C))
-    out |= (sa == sb) & (sb == sc) & (sa != 0)
+@njit(cache=True)
+def _count_overlaps(ebox, fbox, estart, fstart):  # pragma: no cover - compiled
+    """How many (edge, face) entries listed under a common cell have overlapping boxes (an upper bound on the pairs
+    ``_list_pairs`` reports; a loop without data-dependent branches, which the compiler vectorises)."""
+    total = 0
+    for q in range(estart.size - 1):
+        for ka in range(estart[q], estart[q + 1]):
+            lo0, lo1, lo2 = ebox[0, ka], ebox[1, ka], ebox[2, ka]
+            hi0, hi1, hi2 = ebox[3, ka], ebox[4, ka], ebox[5, ka]
+            for kb in range(fstart[q], fstart[q + 1]):
+                total += (
+                    (fbox[0, kb] <= hi0) & (fbox[3, kb] >= lo0)
+                    & (fbox[1, kb] <= hi1) & (fbox[4, kb] >= lo1)
+                    & (fbox[2, kb] <= hi2) & (fbox[5, kb] >= lo2)
+                )
+    return total
+
+
+@njit(cache=True)
+def _list_pairs(ebox, fbox, eint, fint, estart, eitems, fstart, fitems, dims, ei, fi):  # pragma: no cover - compiled
+    """Write the (edge, face) pairs to ei, fi cell by cell and return how many: those whose boxes overlap, that the
+    cell holding the low corner of the boxes' intersection reports, and that share no vertex. ``ebox``, ``fbox``
+    (6, entries): the listed boxes' lo0 lo1 lo2 hi0 hi1 hi2 in list order; ``eint`` (5, entries), ``fint``
+    (6, entries): their first cells per axis and their vertices, likewise (read in sequence)."""
+    found = 0
+    for q in range(estart.size - 1):
+        if estart[q] == estart[q + 1] or fstart[q] == fstart[q + 1]:
+            continue
+        iz = q % dims[2]
+        iy = (q // dims[2]) % dims[1]
+        ix = q // (dims[2] * dims[1])
+        for ka in range(estart[q], estart[q + 1]):
+            lo0, lo1, lo2 = ebox[0, ka], ebox[1, ka], ebox[2, ka]
+            hi0, hi1, hi2 = ebox[3, ka], ebox[4, ka], ebox[5, ka]
+            a, b = eint[3, ka], eint[4, ka]
+            for kb in range(fstart[q], fstart[q + 1]):
+                overlap = (
+                    (fbox[0, kb] <= hi0) & (fbox[3, kb] >= lo0)
+                    & (fbox[1, kb] <= hi1) & (fbox[4, kb] >= lo1)
+                    & (fbox[2, kb] <= hi2) & (fbox[5, kb] >= lo2)
+                )
+                if not overlap:
+                    continue
+                keep = (
+                    # the cell of the intersection's low corner reports the pair (the cell of a max: the max of cells)
+                    (max(eint[0, ka], fint[0, kb]) == ix)
+                    & (max(eint[1, ka], fint[1, kb]) == iy)
+                    & (max(eint[2, ka], fint[2, kb]) == iz)
+                    # and no shared vertex
+                    & (a != fint[3, kb]) & (a != fint[4, kb]) & (a != fint[5, kb])
+                    & (b != fint[3, kb]) & (b != fint[4, kb]) & (b != fint[5, kb])
+                )
+                if keep:
+                    ei[found] = eitems[ka]
+                    fi[found] = fitems[kb]
+                    found += 1
+    return found
+
+
+def _cell_ranges(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray):
+    """(first, last) (k, 3) int64: the grid cells each box [lo, hi] overlaps, per axis (clipped to the grid)."""
+    first = np.clip(np.floor((lo - origin) / h), 0, dims - 1).astype(np.int64)
+    last = np.clip(np.floor((hi - origin) / h), 0, dims - 1).astype(np.int64)
+    return first, last
+
+
+def _cell_lists(first: np.ndarray, last: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(start, items): box ids listed under every cell they overlap, as compressed rows per cell id
+    (ix·dims1 + iy)·dims2 + iz; within a cell in increasing box id."""
+    span = last - first + 1
+    count = span.prod(axis=1)
+    box = np.repeat(np.arange(first.shape[0], dtype=np.int64), count)
+    local = np.arange(box.size, dtype=np.int64) - np.repeat(np.cumsum(count) - count, count)
+    sy, sz = span[box, 1], span[box, 2]
+    ix = first[box, 0] + local // (sy * sz)
+    iy = first[box, 1] + (local // sz) % sy
+    iz = first[box, 2] + local % sz
+    cell = (ix * dims[1] + iy) * dims[2] + iz
+    order = np.argsort(cell, kind="stable")
+    start = np.zeros(int(dims.prod()) + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cell, minlength=start.size - 1), out=start[1:])
+    return start, box[order]
+
+
+def _edge_face_box_pairs(v: np.ndarray, e: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(edge ids, face ids) of every edge/face pair whose closed bounding boxes overlap and which share no vertex.
+
+    A uniform grid (cells about twice the mean edge box, at most about four cells per box overall, coarser while the
+    cell lists would hold more than 32 entries per box): every box is listed under each cell it overlaps, and a pair
+    is reported by the one cell that holds the low corner of the two boxes' intersection (cell indices are monotone in
+    the coordinate, so that cell is each box's first cell or beyond, and both boxes are listed there): each pair
+    exactly once. Box ends are coordinates (min and max are exact), so touching boxes are never lost to rounding."""
+    ne, nf = e.shape[0], f.shape[0]
+    e0, e1 = v[e[:, 0]], v[e[:, 1]]
+    elo, ehi = np.minimum(e0, e1), np.maximum(e0, e1)
+    f0, f1, f2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    flo, fhi = np.minimum(np.minimum(f0, f1), f2), np.maximum(np.maximum(f0, f1), f2)
+    origin = np.minimum(elo.min(axis=0), flo.min(axis=0))
+    extent = np.maximum(ehi.max(axis=0), fhi.max(axis=0)) - origin
+    h = 2.0 * float((ehi - elo).max(axis=1).mean())
+    if not h > 0.0:  # every edge a point: one cell per axis
+        h = max(float(extent.max()), 1.0)
+    cells = float(np.prod(np.floor(extent / h) + 1.0))
+    if cells > 4.0 * (ne + nf):
+        h *= (cells / (4.0 * (ne + nf))) ** (1.0 / 3.0)
+    while True:  # boxes far larger than the mean (long spokes of a fan) are listed under many cells
+        dims = (np.floor(extent / h) + 1).astype(np.int64)
+        ef, el = _cell_ranges(elo, ehi, origin, h, dims)
+        ff, fl = _cell_ranges(flo, fhi, origin, h, dims)
+        listed = int((el - ef + 1).prod(axis=1).sum() + (fl - ff + 1).prod(axis=1).sum())
+        if listed <= 32 * (ne + nf) or dims.prod() == 1:
+            break
+        h *= 2.0
+    estart, eitems = _cell_lists(ef, el, dims)
+    fstart, fitems = _cell_lists(ff, fl, dims)
+    ebox = np.ascontiguousarray(np.concatenate([elo, ehi], axis=1)[eitems].T)
+    fbox = np.ascontiguousarray(np.concatenate([flo, fhi], axis=1)[fitems].T)
+    eint = np.ascontiguousarray(np.concatenate([ef, e], axis=1)[eitems].T)
+    fint = np.ascontiguousarray(np.concatenate([ff, f], axis=1)[fitems].T)
+    bound = _count_overlaps(ebox, fbox, estart, fstart)
+    ei = np.empty(bound, dtype=np.int64)
+    fi = np.empty(bound, dtype=np.int64)
+    n = _list_pairs(ebox, fbox, eint, fint, estart, eitems, fstart, fitems, dims, ei, fi)
+    ei, fi = ei[:n].copy(), fi[:n].copy()
+    return ei, fi
+
+
+@njit(cache=True)
+def _orient3(a, b, c, d, scale):  # pragma: no cover - compiled
+    """Sign of orient3d(a, b, c, d) = det[b-a, c-a, d-a]; 0 where unsure ."""
+    u0, u1, u2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    v0, v1, v2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    w0, w1, w2 = d[0] - a[0], d[1] - a[1], d[2] - a[2]
+    det = u0 * (v1 * w2 - v2 * w1) + u1 * (v2 * w0 - v0 * w2) + u2 * (v0 * w1 - v1 * w0)
+    nu = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    nw = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    bound = _SLACK * (nu * nv * nw + scale * (nu * nv + nv * nw + nu * nw))
+    return 1 if det > bound else (-1 if det < -bound else 0)
+
+
+@njit(cache=True)
+def _orient2(a0, a1, b0, b1, c0, c1, scale):  # pragma: no cover - compiled
+    """Sign of orient2d(a, b, c) = det[b-a, c-a]; 0 where unsure (as ``_sign2``)."""
+    u0, u1, v0, v1 = b0 - a0, b1 - a1, c0 - a0, c1 - a1
+    det = u0 * v1 - u1 * v0
+    nu, nv = np.sqrt(u0 * u0 + u1 * u1), np.sqrt(v0 * v0 + v1 * v1)
+    bound = _SLACK * (nu * nv + scale * (nu + nv))
+    return 1 if det > bound else (-1 if det < -bound else 0)
+
+
+@njit(cache=True)
+def _unresolved_pairs(v, e, f, ei, fi, scale):  # pragma: no cover - compiled
+    """True for the candidate pairs that the float64 orientation tests cannot prove disjoint (the robust predicate
+    decides those). Both endpoints strictly on one side of the triangle's plane: disjoint. Otherwise, not coplanar:
+    disjoint when the edge's line passes the triangle's three edges on certainly different sides. (Nearly) coplanar:
+    disjoint when, projected along the normal's largest axis, a triangle edge or the segment's line separates them."""
+    n = ei.size
+    out = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        p, q = v[e[ei[k], 0]], v[e[ei[k], 1]]
+        a, b, c = v[f[fi[k], 0]], v[f[fi[k], 1]], v[f[fi[k], 2]]
+        sp, sq = _orient3(a, b, c, p, scale), _orient3(a, b, c, q, scale)
+        if sp * sq == 1:
+            continue
+        if sp != 0 or sq != 0:
+            s1 = _orient3(p, q, a, b, scale)
+            s2 = _orient3(p, q, b, c, scale)
+            s3 = _orient3(p, q, c, a, scale)
+            pos = s1 == 1 or s2 == 1 or s3 == 1
+            neg = s1 == -1 or s2 == -1 or s3 == -1
+            out[k] = not (pos and neg)
+            continue
+        # coplanar within the slack: project along the dominant axis of the triangle's normal
+        n0 = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
+        n1 = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
+        n2 = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        x, y = 1, 2
+        if abs(n1) > abs(n0) and abs(n1) >= abs(n2):
+            x, y = 0, 2
+        elif abs(n2) > abs(n0) and abs(n2) > abs(n1):
+            x, y = 0, 1
+        disjoint = False
+        for r in range(3):
+            t0 = (a, b, c)[r]
+            t1 = (b, c, a)[r]
+            opp = (c, a, b)[r]
+            side = _orient2(t0[x], t0[y], t1[x], t1[y], opp[x], opp[y], scale)
+            s_p = _orient2(t0[x], t0[y], t1[x], t1[y], p[x], p[y], scale)
+            s_q = _orient2(t0[x], t0[y], t1[x], t1[y], q[x], q[y], scale)
+            if side != 0 and s_p == -side and s_q == -side:
+                disjoint = True
+        sa = _orient2(p[x], p[y], q[x], q[y], a[x], a[y], scale)
+        sb = _orient2(p[x], p[y], q[x], q[y], b[x], b[y], scale)
+        sc = _orient2(p[x], p[y], q[x], q[y], c[x], c[y], scale)
+        if sa == sb and sb == sc and sa != 0:
+            disjoint = True
+        out[k] = not disjoint
     return out
-
-
-def _edge_face_candidates(v: np.ndarray, e: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    import ipctk
-
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    bp = ipctk.LBVH()
-    # A hair of inflation so exactly touching boxes are never lost to rounding.
-    bp.build(v, e.astype(np.int32), f.astype(np.int32), 1e-12 * diag)
-    cands = bp.detect_edge_face_candidates()
-    if not cands:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    # ipctk hands back a list of candidate objects: two attribute sweeps (half the time of a list of tuples)
-    edge_ids = np.fromiter(map(attrgetter("edge_id"), cands), dtype=np.int64, count=len(cands))
-    face_ids = np.fromiter(map(attrgetter("face_id"), cands), dtype=np.int64, count=len(cands))
-    return edge_ids, face_ids
 
 
 def find_intersecting_pairs(vertices: np.ndarray, edges: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -108,41 +267,23 @@ def find_intersecting_pairs(vertices: np.ndarray, edges: np.ndarray, faces: np.n
     empty = np.zeros((0, 2), dtype=np.int64)
     if e.shape[0] == 0 or f.shape[0] == 0:
         return empty
-    ei, fi = _edge_face_candidates(v, e, f)
+    e, f = np.ascontiguousarray(e), np.ascontiguousarray(f)
+    ei, fi = _edge_face_box_pairs(v, e, f)
     if ei.size == 0:
         return empty
-    ev, fv = e[ei], f[fi]
-    shares = (ev[:, :, None] == fv[:, None, :]).any(axis=(1, 2))
-    ei, fi, ev, fv = ei[~shares], fi[~shares], ev[~shares], fv[~shares]
-    if ei.size == 0:
-        return empty
-
-    scale = float(np.abs(v).max())
-    p, q = v[ev[:, 0]], v[ev[:, 1]]
-    a, b, c = v[fv[:, 0]], v[fv[:, 1]], v[fv[:, 2]]
-    sp, sq = _sign3(a, b, c, p, scale), _sign3(a, b, c, q, scale)
-    coplanar = (sp == 0) & (sq == 0)
-    reject = _same(sp, sq)
-    general = ~reject & ~coplanar
-    if general.any():
-        g = np.flatnonzero(general)
-        s1 = _sign3(p[g], q[g], a[g], b[g], scale)
-        s2 = _sign3(p[g], q[g], b[g], c[g], scale)
-        s3 = _sign3(p[g], q[g], c[g], a[g], scale)
-        reject[g] = _mixed(s1, s2, s3)
-    if coplanar.any():
-        cp = np.flatnonzero(coplanar)
-        reject[cp] = _coplanar_disjoint(p[cp], q[cp], a[cp], b[cp], c[cp], scale)
+    keep = np.flatnonzero(_unresolved_pairs(v, e, f, ei, fi, float(np.abs(v).max())))
 
     import ipctk
 
-    keep = np.flatnonzero(~reject)
+    ev, fv = e[ei[keep]], f[fi[keep]]
     confirmed = [
-        i for i in keep if ipctk.is_edge_intersecting_triangle(p[i], q[i], a[i], b[i], c[i])
-    ]  # loop over the few pairs the vectorised filter could not reject
+        k
+        for k in range(keep.size)
+        if ipctk.is_edge_intersecting_triangle(v[ev[k, 0]], v[ev[k, 1]], v[fv[k, 0]], v[fv[k, 1]], v[fv[k, 2]])
+    ]  # loop over the few pairs the filter could not reject
     if not confirmed:
         return empty
-    idx = np.asarray(confirmed, dtype=np.int64)
+    idx = keep[np.asarray(confirmed, dtype=np.int64)]
     pairs = np.stack([ei[idx], fi[idx]], axis=1)
     order = np.lexsort((pairs[:, 1], pairs[:, 0]))
     return pairs[order]

@@ -1,8 +1,10 @@
 """Edge-triangle and segment-segment intersection detection."""
 
 import numpy as np
+import pytest
 
 from idp.contact.intersections import (
+    _edge_face_box_pairs,
     count_intersections,
     find_intersecting_pairs,
     find_intersecting_segments,
@@ -83,3 +85,58 @@ def test_pair_keys_memo_answers_only_the_same_input():
     apart[n:] += np.array([3.0, 0.0, 0.0])
     assert intersecting_pair_keys(apart, f) == set()
     assert intersecting_pair_keys(v, f) == intersecting_pair_keys(v[:, [0, 1, 2]].copy(order="F"), f)
+
+
+def _brute_box_pairs(v, e, f):
+    """Every (edge, face) pair with overlapping closed boxes and no shared vertex, by testing all pairs."""
+    elo, ehi = v[e].min(axis=1), v[e].max(axis=1)
+    flo, fhi = v[f].min(axis=1), v[f].max(axis=1)
+    overlap = np.all((elo[:, None] <= fhi[None]) & (ehi[:, None] >= flo[None]), axis=2)
+    shares = (e[:, None, :, None] == f[None, :, None, :]).any(axis=(2, 3))
+    i, j = np.nonzero(overlap & ~shares)
+    return set(zip(i.tolist(), j.tolist(), strict=True))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_grid_broad_phase_finds_every_overlapping_pair_once(seed):
+    """The certificate's own broad phase against all pairs: random soups, lattice points (boxes that touch exactly,
+    flat boxes, coplanar triangles) and fans of long spokes among small triangles (boxes over many cells)."""
+    rng = np.random.default_rng(seed)
+    kind = seed % 3
+    if kind == 0:
+        v = rng.normal(size=(200, 3)) * rng.uniform(0.1, 3.0, size=3)
+    elif kind == 1:
+        v = rng.integers(0, 5, size=(150, 3)).astype(float) * rng.uniform(0.5, 2.0)
+        v[rng.random(150) < 0.5, 2] = 0.0
+    else:
+        v = rng.uniform(-0.05, 0.05, size=(200, 3))
+        v[:12] = rng.uniform(-5.0, 5.0, size=(12, 3))  # far-flung hubs: long edges through the whole grid
+    f = rng.integers(0, v.shape[0], size=(180, 3))
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    e = unique_edges(f)
+    ei, fi = _edge_face_box_pairs(np.ascontiguousarray(v), e, f)
+    got = list(zip(ei.tolist(), fi.tolist(), strict=True))
+    assert len(got) == len(set(got))  # each pair once
+    assert set(got) == _brute_box_pairs(v, e, f)
+
+
+def test_crossing_pairs_equal_the_robust_predicate_on_every_pair():
+    """find_intersecting_pairs (grid, float filter, robust predicate on the rest) against ipctk's predicate on all
+    pairs of a lattice soup full of exact touching and coplanar cases."""
+    import ipctk
+
+    rng = np.random.default_rng(4)
+    v = rng.integers(0, 4, size=(60, 3)).astype(float)
+    v[:30, 2] = 0.0
+    f = rng.integers(0, 60, size=(70, 3))
+    area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    f = f[area > 0]  # ipctk's predicate calls an edge near a zero-area triangle intersecting (the filter does not)
+    e = unique_edges(f)
+    expected = [
+        [i, j]
+        for i in range(len(e))
+        for j in range(len(f))
+        if not set(e[i]) & set(f[j]) and ipctk.is_edge_intersecting_triangle(*v[e[i]], *v[f[j]])
+    ]
+    got = find_intersecting_pairs(v, e, f).tolist()
+    assert got == expected and len(expected) > 10
