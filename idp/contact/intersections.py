@@ -2,7 +2,7 @@
 
 IPC needs an intersection-free start state: a surface edge that crosses a surface triangle
 (3D) or two boundary segments that cross (2D) make the barrier undefined. Detection runs in
-three stages: a broad phase (a compiled sweep over the bounding boxes in 3D, a k-d tree in 2D),
+three stages: a broad phase (a uniform grid over the bounding boxes in 3D, a k-d tree in 2D),
 a float64 orientation filter that rejects the pairs it can prove disjoint (compiled in 3D,
 vectorised in 2D), and ipctk's robust predicates as the final word on every pair the filter
 could not reject. Pairs of primitives that share a vertex are never reported (they touch by
@@ -69,9 +69,12 @@ def _count_overlaps(ebox, fbox, estart, fstart):  # pragma: no cover - compiled
             hi0, hi1, hi2 = ebox[3, ka], ebox[4, ka], ebox[5, ka]
             for kb in range(fstart[q], fstart[q + 1]):
                 total += (
-                    (fbox[0, kb] <= hi0) & (fbox[3, kb] >= lo0)
-                    & (fbox[1, kb] <= hi1) & (fbox[4, kb] >= lo1)
-                    & (fbox[2, kb] <= hi2) & (fbox[5, kb] >= lo2)
+                    (fbox[0, kb] <= hi0)
+                    & (fbox[3, kb] >= lo0)
+                    & (fbox[1, kb] <= hi1)
+                    & (fbox[4, kb] >= lo1)
+                    & (fbox[2, kb] <= hi2)
+                    & (fbox[5, kb] >= lo2)
                 )
     return total
 
@@ -95,9 +98,12 @@ def _list_pairs(ebox, fbox, eint, fint, estart, eitems, fstart, fitems, dims, ei
             a, b = eint[3, ka], eint[4, ka]
             for kb in range(fstart[q], fstart[q + 1]):
                 overlap = (
-                    (fbox[0, kb] <= hi0) & (fbox[3, kb] >= lo0)
-                    & (fbox[1, kb] <= hi1) & (fbox[4, kb] >= lo1)
-                    & (fbox[2, kb] <= hi2) & (fbox[5, kb] >= lo2)
+                    (fbox[0, kb] <= hi0)
+                    & (fbox[3, kb] >= lo0)
+                    & (fbox[1, kb] <= hi1)
+                    & (fbox[4, kb] >= lo1)
+                    & (fbox[2, kb] <= hi2)
+                    & (fbox[5, kb] >= lo2)
                 )
                 if not overlap:
                     continue
@@ -107,8 +113,12 @@ def _list_pairs(ebox, fbox, eint, fint, estart, eitems, fstart, fitems, dims, ei
                     & (max(eint[1, ka], fint[1, kb]) == iy)
                     & (max(eint[2, ka], fint[2, kb]) == iz)
                     # and no shared vertex
-                    & (a != fint[3, kb]) & (a != fint[4, kb]) & (a != fint[5, kb])
-                    & (b != fint[3, kb]) & (b != fint[4, kb]) & (b != fint[5, kb])
+                    & (a != fint[3, kb])
+                    & (a != fint[4, kb])
+                    & (a != fint[5, kb])
+                    & (b != fint[3, kb])
+                    & (b != fint[4, kb])
+                    & (b != fint[5, kb])
                 )
                 if keep:
                     ei[found] = eitems[ka]
@@ -145,7 +155,7 @@ def _cell_lists(first: np.ndarray, last: np.ndarray, dims: np.ndarray) -> tuple[
 def _edge_face_box_pairs(v: np.ndarray, e: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(edge ids, face ids) of every edge/face pair whose closed bounding boxes overlap and which share no vertex.
 
-    A uniform grid (cells about twice the mean edge box, at most about four cells per box overall, coarser while the
+    A uniform grid (cells about twice the mean edge box, the grid at most four cells per box, coarser while the
     cell lists would hold more than 32 entries per box): every box is listed under each cell it overlaps, and a pair
     is reported by the one cell that holds the low corner of the two boxes' intersection (cell indices are monotone in
     the coordinate, so that cell is each box's first cell or beyond, and both boxes are listed there): each pair
