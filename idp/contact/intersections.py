@@ -58,6 +58,19 @@ def _same(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
     return (s1 * s2) == 1
 
 
+@njit(cache=True, inline="always")
+def _overlaps(fbox, kb, lo0, lo1, lo2, hi0, hi1, hi2):  # pragma: no cover - compiled
+    """Whether listed face box ``kb`` of ``fbox`` (6, entries) overlaps the closed box [lo, hi] (no branches)."""
+    return (
+        (fbox[0, kb] <= hi0)
+        & (fbox[3, kb] >= lo0)
+        & (fbox[1, kb] <= hi1)
+        & (fbox[4, kb] >= lo1)
+        & (fbox[2, kb] <= hi2)
+        & (fbox[5, kb] >= lo2)
+    )
+
+
 @njit(cache=True)
 def _count_overlaps(ebox, fbox, estart, fstart):  # pragma: no cover - compiled
     """How many (edge, face) entries listed under a common cell have overlapping boxes (an upper bound on the pairs
@@ -68,14 +81,7 @@ def _count_overlaps(ebox, fbox, estart, fstart):  # pragma: no cover - compiled
             lo0, lo1, lo2 = ebox[0, ka], ebox[1, ka], ebox[2, ka]
             hi0, hi1, hi2 = ebox[3, ka], ebox[4, ka], ebox[5, ka]
             for kb in range(fstart[q], fstart[q + 1]):
-                total += (
-                    (fbox[0, kb] <= hi0)
-                    & (fbox[3, kb] >= lo0)
-                    & (fbox[1, kb] <= hi1)
-                    & (fbox[4, kb] >= lo1)
-                    & (fbox[2, kb] <= hi2)
-                    & (fbox[5, kb] >= lo2)
-                )
+                total += _overlaps(fbox, kb, lo0, lo1, lo2, hi0, hi1, hi2)
     return total
 
 
@@ -97,15 +103,7 @@ def _list_pairs(ebox, fbox, eint, fint, estart, eitems, fstart, fitems, dims, ei
             hi0, hi1, hi2 = ebox[3, ka], ebox[4, ka], ebox[5, ka]
             a, b = eint[3, ka], eint[4, ka]
             for kb in range(fstart[q], fstart[q + 1]):
-                overlap = (
-                    (fbox[0, kb] <= hi0)
-                    & (fbox[3, kb] >= lo0)
-                    & (fbox[1, kb] <= hi1)
-                    & (fbox[4, kb] >= lo1)
-                    & (fbox[2, kb] <= hi2)
-                    & (fbox[5, kb] >= lo2)
-                )
-                if not overlap:
+                if not _overlaps(fbox, kb, lo0, lo1, lo2, hi0, hi1, hi2):
                     continue
                 keep = (
                     # the cell of the intersection's low corner reports the pair (the cell of a max: the max of cells)
@@ -417,17 +415,15 @@ def intersecting_pair_keys(vertices: np.ndarray, faces: np.ndarray) -> set[tuple
 def _intersecting_pair_keys(vertices: np.ndarray, f: np.ndarray) -> set[tuple[tuple[int, ...], tuple[int, ...]]]:
     from idp.mesh.surface import unique_edges
 
-    pairs = surface_intersecting_pairs(vertices, f)
-    if len(pairs) == 0:
-        return set()
-    if f.shape[1] == 2:
+    if f.ndim == 2 and f.shape[1] == 2:
+        pairs = find_intersecting_segments(vertices, f)
         a, b = np.sort(f[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
-        keys = {_ordered_pair(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
-    else:
-        e = unique_edges(f)
-        a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
-        keys = {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
-    return keys
+        return {_ordered_pair(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
+    _, f = _check(vertices, f, 3, 3, "faces")
+    e = unique_edges(f)  # once: the pairs index it and the keys read it
+    pairs = find_intersecting_pairs(vertices, e, f)
+    a, b = np.sort(e[pairs[:, 0]], axis=1), np.sort(f[pairs[:, 1]], axis=1)
+    return {(tuple(p), tuple(q)) for p, q in zip(a.tolist(), b.tolist(), strict=True)}
 
 
 def pairs_within(keys: set[tuple[tuple[int, ...], tuple[int, ...]]], vertices: np.ndarray) -> int:
