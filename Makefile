@@ -9,21 +9,19 @@ STAMP  := $(VENV)/.installed
 
 venv: $(STAMP)
 
-# what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything.
-# --no-compile: the dependencies' modules are byte-compiled when first imported (the few a run uses), not all at
-# install (pip install 22 -> 11 s on the 2-core Intel VM; the first import 0.3 s longer)
+# what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything
 $(CORE): pyproject.toml
 	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 20 s)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet --no-compile -e '.[cholmod]'
+	$(BIN)/pip install --quiet -e '.[cholmod]'
 	$(BIN)/python -c "from idp._bytecode import compile_package; compile_package()"  # as a wheel install does
 	touch $(CORE)
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
 $(STAMP): $(CORE)
 	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
-	$(BIN)/pip install --quiet --no-compile -e '.[cholmod,test,lint,usd,remesh,batch]'
+	$(BIN)/pip install --quiet -e '.[cholmod,test,lint,usd,remesh,batch]'
 	touch $(STAMP)
 
 # the first run on a machine compiles the numba kernels (about half a minute on 2 cores, shown as a progress bar);
