@@ -107,21 +107,12 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
     ),
     # deformable solids (tetrahedra in 3D, triangles in 2D): elasticity and the inversion filter
     "solid": (
-        Kernel(
+        Kernel(  # element energies, gradients, Hessians; or (fused assembly) added per vertex-row part into the matrix
             _E,
-            "element_terms",
+            "_element_pass",
             "(float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1], float64[::1],"
-            " boolean, boolean, boolean, float64, float64[::1], float64[:, ::1], float64[:, :, ::1])",
-            # 16.6 s alone, but its element chunk is element_terms_scatter's: compiled after that one (its chunk
-            # then comes from the cache), it costs about 5 s, and the other process takes _hessians meanwhile
-            5.0,
-        ),
-        Kernel(  # the Newton matrix's elastic part: evaluated and added per vertex-row part (fused assembly)
-            _E,
-            "element_terms_scatter",
-            "(float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1], float64[::1],"
-            " boolean, float64, int64[::1], int64[::1], int64[::1], int32[:, :, ::1], int32[:, :, ::1], float64,"
-            " float64[::1], float64[::1])",
+            " boolean, boolean, boolean, float64, float64[::1], float64[:, ::1], float64[:, :, ::1], int64[::1],"
+            " int64[::1], int64[::1], int32[:, :, ::1], int32[:, :, ::1], float64, float64[::1], float64[::1])",
             17.0,
         ),
         Kernel(

@@ -679,7 +679,163 @@ def _element_chunk(
                     H[i, j] = H[j, i]
 
 
+@njit(cache=True, error_model="numpy")
+def _scatter_part(
+    p,
+    x,
+    elements,
+    dm_inv,
+    volumes,
+    model,
+    param_a,
+    param_b,
+    project,
+    power,
+    owner,
+    part_ptr,
+    part_elements,
+    base,
+    stride,
+    weight,
+    data,
+    grad,
+):  # pragma: no cover
+    """Part p of :func:`element_terms_scatter` (one thread's vertex rows)."""
+    d = x.shape[1]
+    nv = elements.shape[1]
+    k = nv * d
+    e_buf = np.empty(CHUNK)
+    g_buf = np.empty((CHUNK, k))
+    h_buf = np.empty((CHUNK, k, k))
+    lo = part_ptr[p]
+    hi = part_ptr[p + 1]
+    for q0 in range(lo, hi, CHUNK):
+        q1 = min(hi, q0 + CHUNK)
+        _element_chunk(
+            q0,
+            q1,
+            part_elements,
+            q0,
+            x,
+            elements,
+            dm_inv,
+            volumes,
+            model,
+            param_a,
+            param_b,
+            # not literal Trues: the same compiled _element_chunk as element_terms' (numba types np.bool_ as bool)
+            np.bool_(True),  # type: ignore[arg-type]
+            np.bool_(True),  # type: ignore[arg-type]
+            project,
+            power,
+            e_buf,
+            g_buf,
+            h_buf,
+        )
+        for q in range(q0, q1):
+            t = part_elements[q]
+            o = q - q0
+            for a in range(nv):
+                va = elements[t, a]
+                if owner[va] != p:
+                    continue
+                for r in range(d):
+                    grad[d * va + r] += g_buf[o, d * a + r]
+                for b in range(nv):
+                    p0 = base[t, a, b]
+                    if p0 < 0:
+                        continue
+                    st = stride[t, a, b]
+                    for i in range(d):
+                        for j in range(d):
+                            data[p0 + i * st + j] += weight * h_buf[o, d * a + i, d * b + j]
+
+
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def _element_pass(
+    x,
+    elements,
+    dm_inv,
+    volumes,
+    model,
+    param_a,
+    param_b,
+    want_grad,
+    want_hess,
+    project,
+    power,
+    energy_out,
+    grad_out,
+    hess_out,
+    owner,
+    part_ptr,
+    part_elements,
+    base,
+    stride,
+    weight,
+    data,
+    grad,
+):  # pragma: no cover
+    """:func:`element_terms` (``part_ptr`` empty) or :func:`element_terms_scatter` in one compiled entry point with
+    one parallel loop: numba links every callee into each entry point's library and optimises and generates its
+    code again there, so two entry points over the same element chunk cost two compilations of it (the two took
+    16.9 + 8.6 s of the first run's compile work on the Intel VM)."""
+    scatter = part_ptr.size > 0
+    m = elements.shape[0]
+    units = part_ptr.size - 1 if scatter else (m + CHUNK - 1) // CHUNK
+    no_ids = np.empty(0, np.int64)
+    for u in prange(units):
+        if scatter:
+            _scatter_part(
+                np.int64(u),
+                x,
+                elements,
+                dm_inv,
+                volumes,
+                model,
+                param_a,
+                param_b,
+                project,
+                power,
+                owner,
+                part_ptr,
+                part_elements,
+                base,
+                stride,
+                weight,
+                data,
+                grad,
+            )
+        else:
+            q0 = np.int64(u) * CHUNK
+            _element_chunk(
+                q0,
+                min(m, q0 + CHUNK),
+                no_ids,
+                np.int64(0),
+                x,
+                elements,
+                dm_inv,
+                volumes,
+                model,
+                param_a,
+                param_b,
+                want_grad,
+                want_hess,
+                project,
+                power,
+                energy_out,
+                grad_out,
+                hess_out,
+            )
+
+
+_NO_IDS = np.empty(0, np.int64)
+_NO_PARTS = np.empty(0, np.int64)
+_NO_SCATTER = np.empty((0, 0, 0), np.int32)
+_NO_VALUES = np.empty(0)
+
+
 def element_terms(
     x: np.ndarray,
     elements: np.ndarray,
@@ -705,33 +861,32 @@ def element_terms(
     (paper eq. 9, :mod:`idp.energies._pnorm_kernels`); 1 is the plain energy.  Parallel over chunks of
     CHUNK elements; every element writes only its own output rows (no races).
     """
-    m = elements.shape[0]
-    nchunk = (m + CHUNK - 1) // CHUNK
-    no_ids = np.empty(0, np.int64)
-    for ch in prange(nchunk):
-        _element_chunk(
-            ch * CHUNK,
-            min(m, (ch + 1) * CHUNK),
-            no_ids,
-            np.int64(0),  # not a literal 0: the same compiled _element_chunk as element_terms_scatter's
-            x,
-            elements,
-            dm_inv,
-            volumes,
-            model,
-            param_a,
-            param_b,
-            want_grad,
-            want_hess,
-            project,
-            power,
-            energy_out,
-            grad_out,
-            hess_out,
-        )
+    _element_pass(
+        x,
+        elements,
+        dm_inv,
+        volumes,
+        model,
+        param_a,
+        param_b,
+        bool(want_grad),
+        bool(want_hess),
+        bool(project),
+        float(power),
+        energy_out,
+        grad_out,
+        hess_out,
+        _NO_IDS,
+        _NO_PARTS,
+        _NO_IDS,
+        _NO_SCATTER,
+        _NO_SCATTER,
+        0.0,
+        _NO_VALUES,
+        _NO_VALUES,
+    )
 
 
-@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def element_terms_scatter(
     x: np.ndarray,
     elements: np.ndarray,
@@ -761,55 +916,33 @@ def element_terms_scatter(
     parts: the same sums, bit for bit, as evaluating all elements and then scattering them in order.
     ``base[t, a, b]`` is the CSR position of entry (0, 0) of the block of element t's vertices a, b (< 0: pinned),
     ``stride[t, a, b]`` its row stride (:class:`~idp.solver.assembly.FixedPatternAssembler`)."""
-    d = x.shape[1]
-    nv = elements.shape[1]
-    k = nv * d
-    for p in prange(part_ptr.size - 1):
-        e_buf = np.empty(CHUNK)
-        g_buf = np.empty((CHUNK, k))
-        h_buf = np.empty((CHUNK, k, k))
-        lo = part_ptr[p]
-        hi = part_ptr[p + 1]
-        for q0 in range(lo, hi, CHUNK):
-            q1 = min(hi, q0 + CHUNK)
-            _element_chunk(
-                q0,
-                q1,
-                part_elements,
-                q0,
-                x,
-                elements,
-                dm_inv,
-                volumes,
-                model,
-                param_a,
-                param_b,
-                # not literal Trues: the same compiled _element_chunk as element_terms' (numba types np.bool_ as bool)
-                np.bool_(True),  # type: ignore[arg-type]
-                np.bool_(True),  # type: ignore[arg-type]
-                project,
-                power,
-                e_buf,
-                g_buf,
-                h_buf,
-            )
-            for q in range(q0, q1):
-                t = part_elements[q]
-                o = q - q0
-                for a in range(nv):
-                    va = elements[t, a]
-                    if owner[va] != p:
-                        continue
-                    for r in range(d):
-                        grad[d * va + r] += g_buf[o, d * a + r]
-                    for b in range(nv):
-                        p0 = base[t, a, b]
-                        if p0 < 0:
-                            continue
-                        st = stride[t, a, b]
-                        for i in range(d):
-                            for j in range(d):
-                                data[p0 + i * st + j] += weight * h_buf[o, d * a + i, d * b + j]
+    if part_ptr.size < 2:  # no part: nothing to add (an empty part_ptr would select element_terms' loop)
+        return
+    k = elements.shape[1] * x.shape[1]
+    _element_pass(
+        x,
+        elements,
+        dm_inv,
+        volumes,
+        model,
+        param_a,
+        param_b,
+        True,
+        True,
+        bool(project),
+        float(power),
+        _NO_VALUES,
+        np.empty((0, k)),
+        np.empty((0, k, k)),
+        owner,
+        part_ptr,
+        part_elements,
+        base,
+        stride,
+        float(weight),
+        data,
+        grad,
+    )
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
