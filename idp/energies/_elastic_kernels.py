@@ -31,8 +31,9 @@ Per model, in closed forms that stay finite at s_i = s_j:
 
 Local DOF order of an element block: [x0_0, .., x0_{d-1}, x1_0, ...] (vertex-major).
 
-`element_terms` is the numba hot path (prange over chunks of elements, scratch arrays
-allocated once per chunk); `element_terms_reference` is a plain vectorised numpy version
+`element_terms` (per-element outputs) and `element_terms_scatter` (added straight into the Newton matrix) are the
+hot path, both through one compiled `_element_pass` (prange over chunks of elements or parts of the vertex rows,
+scratch arrays allocated once per chunk); `element_terms_reference` is a plain vectorised numpy version
 built along a different route (explicit dF/dx matrix, LAPACK SVD/eigh) kept for tests.
 """
 
