@@ -725,8 +725,8 @@ def _scatter_part(
             param_a,
             param_b,
             # not literal Trues: the same compiled _element_chunk as element_terms' (numba types np.bool_ as bool)
-            np.bool_(True),  # type: ignore[arg-type]
-            np.bool_(True),  # type: ignore[arg-type]
+            np.bool_(True),
+            np.bool_(True),
             project,
             power,
             e_buf,
