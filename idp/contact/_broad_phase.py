@@ -525,93 +525,92 @@ def _pairs_chunk(
     k, chunks, dims, start, items, lo, H, kind, grp, ri, mv, pad, cmin, big, ee_at, fv_at, out_ee, out_fv, n_ee, n_fv
 ):  # pragma: no cover
     """Chunk k of :func:`_pairs` (a plain function: numba's parallel passes over this body, inlined helpers and
-    all, took 11.6 of the broad phase's 32 s of first-run compilation; called from the prange loop it costs 1.4 s)."""
+    all, took 11.6 of the broad phase's 32 s of first-run compilation; called from the prange loop it costs ≈ 1.5 s)."""
     ny, nz = dims[1], dims[2]
     nyz = ny * nz
-    if True:
-        box = np.empty((big, 6))
-        vt = np.empty((big, 4), dtype=np.int32)  # vertex ids (-1 padded), own id
-        msk = np.empty(big, dtype=np.int32)
-        moving = mv.shape[0] > 0
-        mb = np.empty((big if moving else 0, 12))
-        kc = np.empty(NUM_KINDS + 1, dtype=np.int64)
-        pe = ee_at[k]
-        pf = fv_at[k]
-        ee_end = ee_at[k + 1]
-        fv_end = fv_at[k + 1]
-        for c in range(chunks[k], chunks[k + 1]):
-            s = start[c]
-            m = start[c + 1] - s
-            if m < 2:
-                continue
-            cx = c // nyz
-            rem = c - cx * nyz
-            cy = rem // nz
-            cz = rem - cy * nz
-            for j in range(NUM_KINDS + 1):
-                kc[j] = 0
-            for j in range(m):  # entries come grouped by kind
-                g = items[s + j]
-                kc[kind[g] + 1] += 1
-                for a in range(3):
-                    box[j, a] = lo[g, a]
-                    box[j, 3 + a] = H[g, a]
-                for a in range(4):
-                    vt[j, a] = ri[g, a]
-                if moving:
-                    for a in range(12):
-                        mb[j, a] = mv[g, a]
-                msk[j] = (
-                    np.int32(cmin[g, 0] == cx)
-                    | (np.int32(cmin[g, 1] == cy) << 1)
-                    | (np.int32(cmin[g, 2] == cz) << 2)
-                    | grp[g]
-                )
-            for j in range(NUM_KINDS):
-                kc[j + 1] += kc[j]
-            # class q: [kc[q], kc[q + 1]); vertices q = 0..3, edges 4..7, faces 8..11, each (dynamic, dynamic in
-            # the group, static, static in the group)
-            # edge-edge: a dynamic edge outside the group x every later edge; a dynamic one in the group x the
-            # static edges outside it (its pairs with dynamic edges outside the group come from their loop)
-            for i in range(kc[4], kc[6]):
-                l0, l1, l2 = box[i, 0], box[i, 1], box[i, 2]
-                h0, h1, h2 = box[i, 3], box[i, 4], box[i, 5]
-                mi = msk[i]
-                a0, a1, a = vt[i, 0], vt[i, 1], vt[i, 3]
-                j0, j1 = (i + 1, kc[8]) if i < kc[5] else (kc[6], kc[7])
-                if moving:  # (two loops: the plain one stays branch-free)
-                    for j in range(j0, j1):
-                        ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
-                        if ok:
-                            ok = _moving_boxes_meet(mb, i, j, pad)
-                        if pe < ee_end:
-                            b = vt[j, 3]
-                            out_ee[pe, 0] = min(a, b)
-                            out_ee[pe, 1] = max(a, b)
-                        pe += ok
-                else:
-                    for j in range(j0, j1):
-                        ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
-                        if pe < ee_end:
-                            b = vt[j, 3]
-                            out_ee[pe, 0] = min(a, b)
-                            out_ee[pe, 1] = max(a, b)
-                        pe += ok
-            # face-vertex: dynamic faces x all vertices, static faces x dynamic vertices; a face in the group
-            # skips the vertices in the group (two runs of vertex classes)
-            for q in range(8, 12):
-                if q == 8:
-                    r0, r1, r2, r3 = kc[0], kc[4], 0, 0
-                elif q == 9:
-                    r0, r1, r2, r3 = kc[0], kc[1], kc[2], kc[3]
-                elif q == 10:
-                    r0, r1, r2, r3 = kc[0], kc[2], 0, 0
-                else:
-                    r0, r1, r2, r3 = kc[0], kc[1], 0, 0
-                for i in range(kc[q], kc[q + 1]):
-                    pf = _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end, mb, moving, pad)
-        n_ee[k] = pe - ee_at[k]
-        n_fv[k] = pf - fv_at[k]
+    box = np.empty((big, 6))
+    vt = np.empty((big, 4), dtype=np.int32)  # vertex ids (-1 padded), own id
+    msk = np.empty(big, dtype=np.int32)
+    moving = mv.shape[0] > 0
+    mb = np.empty((big if moving else 0, 12))
+    kc = np.empty(NUM_KINDS + 1, dtype=np.int64)
+    pe = ee_at[k]
+    pf = fv_at[k]
+    ee_end = ee_at[k + 1]
+    fv_end = fv_at[k + 1]
+    for c in range(chunks[k], chunks[k + 1]):
+        s = start[c]
+        m = start[c + 1] - s
+        if m < 2:
+            continue
+        cx = c // nyz
+        rem = c - cx * nyz
+        cy = rem // nz
+        cz = rem - cy * nz
+        for j in range(NUM_KINDS + 1):
+            kc[j] = 0
+        for j in range(m):  # entries come grouped by kind
+            g = items[s + j]
+            kc[kind[g] + 1] += 1
+            for a in range(3):
+                box[j, a] = lo[g, a]
+                box[j, 3 + a] = H[g, a]
+            for a in range(4):
+                vt[j, a] = ri[g, a]
+            if moving:
+                for a in range(12):
+                    mb[j, a] = mv[g, a]
+            msk[j] = (
+                np.int32(cmin[g, 0] == cx)
+                | (np.int32(cmin[g, 1] == cy) << 1)
+                | (np.int32(cmin[g, 2] == cz) << 2)
+                | grp[g]
+            )
+        for j in range(NUM_KINDS):
+            kc[j + 1] += kc[j]
+        # class q: [kc[q], kc[q + 1]); vertices q = 0..3, edges 4..7, faces 8..11, each (dynamic, dynamic in
+        # the group, static, static in the group)
+        # edge-edge: a dynamic edge outside the group x every later edge; a dynamic one in the group x the
+        # static edges outside it (its pairs with dynamic edges outside the group come from their loop)
+        for i in range(kc[4], kc[6]):
+            l0, l1, l2 = box[i, 0], box[i, 1], box[i, 2]
+            h0, h1, h2 = box[i, 3], box[i, 4], box[i, 5]
+            mi = msk[i]
+            a0, a1, a = vt[i, 0], vt[i, 1], vt[i, 3]
+            j0, j1 = (i + 1, kc[8]) if i < kc[5] else (kc[6], kc[7])
+            if moving:  # (two loops: the plain one stays branch-free)
+                for j in range(j0, j1):
+                    ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
+                    if ok:
+                        ok = _moving_boxes_meet(mb, i, j, pad)
+                    if pe < ee_end:
+                        b = vt[j, 3]
+                        out_ee[pe, 0] = min(a, b)
+                        out_ee[pe, 1] = max(a, b)
+                    pe += ok
+            else:
+                for j in range(j0, j1):
+                    ok = _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1)
+                    if pe < ee_end:
+                        b = vt[j, 3]
+                        out_ee[pe, 0] = min(a, b)
+                        out_ee[pe, 1] = max(a, b)
+                    pe += ok
+        # face-vertex: dynamic faces x all vertices, static faces x dynamic vertices; a face in the group
+        # skips the vertices in the group (two runs of vertex classes)
+        for q in range(8, 12):
+            if q == 8:
+                r0, r1, r2, r3 = kc[0], kc[4], 0, 0
+            elif q == 9:
+                r0, r1, r2, r3 = kc[0], kc[1], kc[2], kc[3]
+            elif q == 10:
+                r0, r1, r2, r3 = kc[0], kc[2], 0, 0
+            else:
+                r0, r1, r2, r3 = kc[0], kc[1], 0, 0
+            for i in range(kc[q], kc[q + 1]):
+                pf = _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end, mb, moving, pad)
+    n_ee[k] = pe - ee_at[k]
+    n_fv[k] = pf - fv_at[k]
 
 
 @njit(cache=True, parallel=True)
