@@ -11,24 +11,32 @@ venv: $(STAMP)
 
 # Packages go in with uv (itself a PyPI wheel; MIT/Apache-2.0), which fetches and unpacks the wheels in parallel and
 # byte-compiles them on every core: the core install took 11 s against pip's 27 s on the 2-core VM, cold caches
-# (docs/benchmarks.md, "Time to first result"). Where uv cannot be installed or fails, pip does the same install.
-INSTALL = if [ -x $(BIN)/uv ] && UV_LINK_MODE=copy $(BIN)/uv pip install --quiet --python $(BIN)/python \
-	--compile-bytecode -e '$(1)'; then :; else $(BIN)/pip install --quiet --upgrade pip && \
-	$(BIN)/pip install --quiet -e '$(1)'; fi
+# (docs/benchmarks.md, "Time to first result"). uv does not read pip's settings: the index, extra index, find-links
+# and CA bundle given to pip in the environment are passed on, and uv also trusts the system's certificates. Where
+# uv cannot be installed or fails, pip does the same install.
+UV_ENV = export UV_LINK_MODE=copy UV_SYSTEM_CERTS=1; \
+	[ -z "$${PIP_INDEX_URL:-}" ] || export UV_INDEX_URL="$$PIP_INDEX_URL"; \
+	[ -z "$${PIP_EXTRA_INDEX_URL:-}" ] || export UV_EXTRA_INDEX_URL="$$PIP_EXTRA_INDEX_URL"; \
+	[ -z "$${PIP_FIND_LINKS:-}" ] || export UV_FIND_LINKS="$$PIP_FIND_LINKS"; \
+	[ -z "$${PIP_CERT:-}" ] || export SSL_CERT_FILE="$$PIP_CERT"
+INSTALL = $(UV_ENV); if [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode \
+	-e '$(1)'; then :; else $(BIN)/pip install --quiet --upgrade pip && $(BIN)/pip install --quiet -e '$(1)'; fi
 
 # what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything
 $(CORE): pyproject.toml
 	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 15 s)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet uv || echo "make: uv not available, installing with pip"
-	$(call INSTALL,.[cholmod])
+	@echo "uv pip install -e '.[cholmod]' (pip if uv fails)"
+	@$(call INSTALL,.[cholmod])
 	$(BIN)/python -c "from idp._bytecode import compile_package; compile_package()"  # as a wheel install does
 	touch $(CORE)
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
 $(STAMP): $(CORE)
 	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
-	$(call INSTALL,.[cholmod,test,lint,usd,remesh,batch])
+	@echo "uv pip install -e '.[cholmod,test,lint,usd,remesh,batch]' (pip if uv fails)"
+	@$(call INSTALL,.[cholmod,test,lint,usd,remesh,batch])
 	touch $(STAMP)
 
 # the first run on a machine compiles the numba kernels (about half a minute on 2 cores, shown as a progress bar);
