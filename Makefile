@@ -33,10 +33,12 @@ $(CORE): pyproject.toml
 	touch $(CORE)
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
+# (a variable: a literal comma would split $(call)'s argument)
+ALL_EXTRAS := cholmod,test,lint,usd,remesh,batch
 $(STAMP): $(CORE)
 	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
-	@echo "uv pip install -e '.[cholmod,test,lint,usd,remesh,batch]' (pip if uv fails)"
-	@$(call INSTALL,.[cholmod,test,lint,usd,remesh,batch])
+	@echo "uv pip install -e '.[$(ALL_EXTRAS)]' (pip if uv fails)"
+	@$(call INSTALL,.[$(ALL_EXTRAS)])
 	touch $(STAMP)
 
 # the first run on a machine compiles the numba kernels (about half a minute on 2 cores, shown as a progress bar);
