@@ -833,8 +833,9 @@ def _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h, cells_per_pr
     """(fv, ee) pairs of every primitive in ``order_l`` with every one in ``order_s``: the latter binned in a grid of
     edge about h, each of the former tested against the cells its box covers (:func:`_cross`)."""
     dims, h = _grid_size(size, h, max(64.0, cells_per_prim * (order_l.size + order_s.size)))
-    cmin_l, cmax_l, _ = _cells(lo, H, order_l, org, 1.0 / h, dims, 1)
-    cmin_s, cmax_s, pos = _cells(lo, H, order_s, org, 1.0 / h, dims, 1)
+    one = np.int64(1)  # not a literal 1: numba would compile another _cells (a parallel one) for it
+    cmin_l, cmax_l, _ = _cells(lo, H, order_l, org, 1.0 / h, dims, one)
+    cmin_s, cmax_s, pos = _cells(lo, H, order_s, org, 1.0 / h, dims, one)
     start = _offsets(pos)
     items = _fill(cmin_s, cmax_s, order_s, pos, dims, start[-1])
     ntc = max(1, min(nt * 8, order_l.size))
@@ -971,15 +972,15 @@ def _run(  # pragma: no cover
                 else:
                     side_s += sd
                     cnt_s += 1.0
-        order_s = _order(kind, is_long, 0)
-        order_l = _order(kind, is_long, 1)
+        order_s = _order(kind, is_long, np.int64(0))
+        order_l = _order(kind, is_long, np.int64(1))
         h_s = infl + scale * side_s / cnt_s if cnt_s > 0 else h0
         h_l = infl + long_scale * side_l / cnt_l if cnt_l > 0 else h0
         fv_s, ee_s = _grid_pairs(prims, order_s, org, h_s, grid)
         fv_l, ee_l = _grid_pairs(prims, order_l, org, h_l, grid)
         fv_x, ee_x = _cross_grid(lo, H, kind, ri, mv, pad, order_l, order_s, org, h_s, cells_per_prim, size, threads)
         return _concat(fv_s, fv_l, fv_x), _concat(ee_s, ee_l, ee_x), 0
-    order = _order(kind, np.zeros(n, dtype=np.int8), 0)
+    order = _order(kind, np.zeros(n, dtype=np.int8), np.int64(0))
     fv, ee = _grid_pairs(prims, order, org, h, grid)
     return fv, ee, 0
 

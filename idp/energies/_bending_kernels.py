@@ -224,7 +224,7 @@ def _bending_chunk(
         H = hess_out[k]
         _lift_hinge_block(Ht, H)
         if project:
-            project_psd(H, 12, work)
+            project_psd(H, np.int64(12), work)  # not a literal 12: numba would compile a project_psd of its own
 
 
 @njit(cache=True)
