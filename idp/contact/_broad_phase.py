@@ -972,7 +972,7 @@ def _run(  # pragma: no cover
                 else:
                     side_s += sd
                     cnt_s += 1.0
-        order_s = _order(kind, is_long, np.int64(0))
+        order_s = _order(kind, is_long, np.int64(0))  # np.int64, not literals: one _order compiled, not two
         order_l = _order(kind, is_long, np.int64(1))
         h_s = infl + scale * side_s / cnt_s if cnt_s > 0 else h0
         h_l = infl + long_scale * side_l / cnt_l if cnt_l > 0 else h0
