@@ -378,6 +378,24 @@ class ContactModel:
             ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project
         )
 
+    def lookahead_hessian_blocks(
+        self, ev: ContactEvaluation, vertex_map: np.ndarray, reach: float, stiffness: float, candidates
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Compiled barrier only (None otherwise): PSD Hessian blocks of the barrier with activation distance
+        ``reach``·d̂ and stiffness ``stiffness``·κ over the ``candidates`` (fv, ee) within that distance at
+        ``ev``'s positions, restricted like :meth:`hessian_blocks`. Added to a Newton matrix they make a majorant
+        that sees pairs just outside d̂ (:class:`idp.solver.newton.StepSolver`, ``contact_lookahead``, which passes
+        the sweep of the move CCD last cut short: the pairs the direction ran into); never part of the energy."""
+        if not self.compiled or self.kappa == 0.0 or candidates is None:
+            return None
+        vs = ev.surface_positions
+        dhat2 = reach * self.dhat
+        fv, ee = candidates
+        cs = self._cb.build_collision_set(vs, self._edges, self._faces, fv, ee, dhat2, self._edge_rest_len2)
+        if not len(cs):
+            return None
+        return self._cb.barrier_hessian_blocks(cs, vs, dhat2, stiffness * self.kappa, vertex_map, True)
+
     def min_distance(self, ev: ContactEvaluation) -> float:
         """Smallest distance among active pairs (not squared); ``inf`` when no pair is within d̂."""
         if ev.num_active == 0:

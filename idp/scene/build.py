@@ -551,6 +551,7 @@ def build_scene(
         check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,
         max_seconds=s.max_step_seconds,
         max_memory=s.max_memory_bytes,
+        contact_lookahead=s.contact_lookahead,
     )
     o, t = scene.output, scene.time
     if repair is not None:

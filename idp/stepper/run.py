@@ -313,6 +313,7 @@ def run_simulation(
                     "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
                     "pcg_iterations": res.pcg_iterations,
                     "exact_refactorizations": res.exact_refactorizations,
+                    "lookahead_iterations": res.lookahead_iterations,
                     "contacts": res.num_contacts,
                     "kappa": res.kappa,
                     "energy": res.energy,

@@ -1,0 +1,80 @@
+"""Contact look-ahead (``[solver] contact_lookahead``): the search matrix of a Newton iteration also sees pairs
+just outside d̂ once CCD has cut a step short. Only the search direction changes: every iterate must still be
+intersection- and inversion-free (independent certificate on each), and each step may stop only on an exact
+matrix's decrement."""
+
+from __future__ import annotations
+
+import pytest
+
+from idp.api import simulate
+from idp.errors import SceneError
+from idp.scene.load import scene_from_dict
+
+
+def _pressed_ball(lookahead: float) -> dict:
+    """A generated ball growing into a box it soon fills: many pairs close in, steps cut by CCD."""
+    return {
+        "name": f"pressed_ball_la{lookahead:g}",
+        "time": {"h": 0.0016, "steps": 6},
+        "solver": {"newton_tol": 0.5, "check_every_iterate": True, "contact_lookahead": lookahead},
+        "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [
+            {
+                "name": "ball",
+                "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+                "rest_shape": {"growth_rate": 0.4, "growth_steps": 6},
+            },
+            {
+                "name": "box",
+                "kind": "obstacle",
+                "generate": {"shape": "box_surface", "lo": [-0.4] * 3, "hi": [0.4] * 3, "resolution": 2},
+            },
+        ],
+    }
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("lookahead")
+    return {la: simulate(scene_from_dict(_pressed_ball(la)), out / f"la{la:g}", progress=False) for la in (0.0, 3.0)}
+
+
+def test_lookahead_is_used_and_every_iterate_is_certified(runs):
+    res = runs[3.0]
+    recs = res.step_records
+    assert sum(r["lookahead_iterations"] for r in recs) > 0, "the scene never cut a step short: it tests nothing"
+    assert all(r["certificate"]["ok"] for r in recs)  # every iterate was checked too (check_every_iterate)
+    assert res.summary["nonconverged_steps"] == 0
+
+
+def test_steps_stop_on_the_exact_decrement(runs):
+    for r in runs[3.0].step_records:
+        assert r["converged"]
+        # the decrement that stopped the step is the last one recorded, and it came from an exact matrix: an
+        # iteration that saw the look-ahead is never the last (it hands the verdict to the next iteration)
+        assert r["decrements"][-1] <= 0.5
+        assert r["lookahead_iterations"] < r["newton_iterations"]
+
+
+def test_same_shapes_within_the_stopping_tolerance(runs):
+    # both runs meet the same stopping rule, so their growth ends equally far: the fill of the box agrees to
+    # within what a Newton tolerance of 0.5·√h in the max norm allows on this coarse ball (a few percent)
+    off, on = runs[0.0].summary["fill_fraction"], runs[3.0].summary["fill_fraction"]
+    assert on == pytest.approx(off, abs=0.03)
+    assert runs[0.0].step_records[-1]["lookahead_iterations"] == 0
+
+
+@pytest.mark.parametrize("bad", [0.5, 1.0, -2.0, "3"])
+def test_lookahead_setting_is_checked(bad):
+    d = _pressed_ball(0.0)
+    d["solver"]["contact_lookahead"] = bad
+    with pytest.raises(SceneError, match="contact_lookahead"):
+        scene_from_dict(d)
+
+
+def test_integer_lookahead_is_accepted():
+    d = _pressed_ball(0.0)
+    d["solver"]["contact_lookahead"] = 3
+    assert scene_from_dict(d).solver.contact_lookahead == 3.0
