@@ -8,31 +8,19 @@ from __future__ import annotations
 import pytest
 
 from idp.api import simulate
+from idp.bench.suite import _ball_in_box
 from idp.errors import SceneError
 from idp.scene.load import scene_from_dict
 
 
 def _pressed_ball(lookahead: float) -> dict:
-    """A generated ball growing into a box it soon fills: many pairs close in, steps cut by CCD."""
-    return {
-        "name": f"pressed_ball_la{lookahead:g}",
-        "time": {"h": 0.0016, "steps": 6},
-        "solver": {"newton_tol": 0.5, "check_every_iterate": True, "contact_lookahead": lookahead},
-        "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
-        "output": {"obj": False, "vtu": False, "png": False},
-        "objects": [
-            {
-                "name": "ball",
-                "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
-                "rest_shape": {"growth_rate": 0.4, "growth_steps": 6},
-            },
-            {
-                "name": "box",
-                "kind": "obstacle",
-                "generate": {"shape": "box_surface", "lo": [-0.4] * 3, "hi": [0.4] * 3, "resolution": 2},
-            },
-        ],
-    }
+    """The bench's generated ball growing in a box, the box made smaller so the ball soon fills it: many pairs
+    close in, steps cut by CCD."""
+    d = _ball_in_box(f"pressed_ball_la{lookahead:g}", 0.4, 6)
+    d["time"]["steps"] = 6
+    d["solver"].update({"check_every_iterate": True, "contact_lookahead": lookahead})
+    d["objects"][1]["generate"].update({"lo": [-0.4] * 3, "hi": [0.4] * 3})
+    return d
 
 
 @pytest.fixture(scope="module")
