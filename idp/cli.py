@@ -551,6 +551,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--threads", type=_thread_count)
     b.add_argument("--steps", type=int, help="override every scene's step count (for quick looks)")
     b.add_argument(
+        "--solver",
+        action="append",
+        metavar="KEY=VALUE",
+        help="set a [solver] key for every idp run (repeatable; e.g. contact_lookahead=3); recorded in the results",
+    )
+    b.add_argument(
         "--with-reference",
         action="store_true",
         help="run the authors' reference code (../shared/reference or $IDP_REFERENCE) in turn with idp on this "

@@ -81,13 +81,50 @@ def scene_table() -> dict:
     return table
 
 
-def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> dict:
+def parse_solver_overrides(items: list[str] | None) -> dict:
+    """``KEY=VALUE`` strings (``--solver``) → a dict of ``[solver]`` settings, each value read as a TOML value
+    (``3``, ``1e-2``, ``true``, ``"scipy"``; a bare word is taken as a string) and the whole checked against the
+    scene schema's solver table now, so a wrong key or value stops the bench before any run."""
+    from idp.errors import SceneError
+    from idp.scene.load import tomllib  # tomli before Python 3.11
+    from idp.scene.schema import SolverConfig
+
+    out: dict = {}
+    for item in items or []:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise SceneError(f"--solver {item!r}: expected KEY=VALUE, e.g. contact_lookahead=3")
+        try:
+            out[key] = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = raw.strip()
+    if out:
+        try:
+            SolverConfig.model_validate(out)
+        except ValueError as exc:
+            raise SceneError(f"--solver: {exc}") from None
+    return out
+
+
+def _with_solver(scene, overrides: dict):
+    """``scene`` with its ``[solver]`` settings updated by ``overrides`` (validated as a whole)."""
+    if not overrides:
+        return scene
+    from idp.scene.schema import SolverConfig
+
+    solver = SolverConfig.model_validate({**scene.solver.model_dump(exclude_unset=True), **overrides})
+    return scene.model_copy(update={"solver": solver})
+
+
+def run_child(name: str, out: Path, steps: int | None, freeze: bool = False, solver: dict | None = None) -> dict:
     """Run one scene in this process and write OUT/NAME.json. ``freeze``: the process runs only this scene
-    (the bench's child), so the imported modules are frozen for the collector first, as `idp run` does."""
+    (the bench's child), so the imported modules are frozen for the collector first, as `idp run` does.
+    ``solver``: ``[solver]`` settings that replace the scene's (``idp bench --solver``)."""
     from idp.api import simulate
 
     factory, _ = scene_table()[name]
-    scene = factory()
+    scene = _with_solver(factory(), solver or {})
     if freeze:
         from idp._heap import freeze_startup_heap
 
@@ -115,6 +152,7 @@ def run_child(name: str, out: Path, steps: int | None, freeze: bool = False) -> 
         "nonconverged_steps": res.summary["nonconverged_steps"],
         "linear_solver": meta.get("linear_solver"),
         "cage_volume": meta.get("cage_volume"),
+        "solver_overrides": solver or None,
         "machine": describe(),
     }
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
@@ -328,11 +366,13 @@ def write_plots(results: list[dict], out: Path, compared: dict | None = None) ->
     plt.close(fig)
 
 
-def _run_idp(name: str, out: Path, steps: int | None) -> dict | None:
+def _run_idp(name: str, out: Path, steps: int | None, solver: list[str] | None = None) -> dict | None:
     """One idp run of a suite scene in its own process; the child's JSON plus the whole-process wall."""
     cmd = [sys.executable, "-m", "idp.bench.suite", "--child", name, "-o", str(out)]
     if steps:
         cmd += ["--steps", str(steps)]
+    for item in solver or []:
+        cmd += ["--solver", item]
     t0 = time.perf_counter()
     r = subprocess.run(cmd)
     process_wall = time.perf_counter() - t0
@@ -369,7 +409,7 @@ def _run_pairs(name: str, out: Path, runs: int, reference: Path | None, args) ->
     idp_runs: list[dict] = []
     ref_runs: list[dict] = []
     for i in range(runs):
-        res = _run_idp(name, out, args.steps)
+        res = _run_idp(name, out, args.steps, getattr(args, "solver", None))
         if res is None:
             break
         idp_runs.append(res)
@@ -430,6 +470,15 @@ def main(args) -> int:
         tiers = ("quick",) if args.quick else ("quick", "full")
         names = [n for n, (_, tier) in table.items() if tier in tiers]
     runs = args.runs or (1 if args.quick or not args.with_reference else 2)
+    from idp.errors import SceneError
+
+    try:
+        overrides = parse_solver_overrides(getattr(args, "solver", None))
+    except SceneError as exc:
+        print(f"idp bench: {exc}", file=sys.stderr)
+        return 2
+    if overrides:
+        print(f"idp bench: every idp run with [solver] {overrides}", flush=True)
     from idp._bytecode import compile_package
 
     compile_package()  # each run's process then imports idp as an installed wheel would (idp/_bytecode.py)
@@ -463,9 +512,9 @@ def main(args) -> int:
         machine = describe()
         print(write_table(results, out, machine, compared))
         write_plots(results, out, compared)
-        (out / "suite.json").write_text(
-            json.dumps({"machine": machine, "results": results, "with_reference": compared or None}, indent=1)
-        )
+        summary = {"machine": machine, "results": results, "with_reference": compared or None}
+        summary["solver_overrides"] = overrides or None
+        (out / "suite.json").write_text(json.dumps(summary, indent=1))
     return 0 if results and all(r["uncertified_frames"] == 0 for r in results) else 1
 
 
@@ -474,8 +523,9 @@ if __name__ == "__main__":
     p.add_argument("--child", required=True)
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--steps", type=int)
+    p.add_argument("--solver", action="append")
     a = p.parse_args()
     from idp._heap import freeze_heap_at_exit
 
     freeze_heap_at_exit()  # as the CLI does: the whole-process wall time is what `idp run` would take
-    run_child(a.child, Path(a.output), a.steps, freeze=True)
+    run_child(a.child, Path(a.output), a.steps, freeze=True, solver=parse_solver_overrides(a.solver))

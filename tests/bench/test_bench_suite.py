@@ -57,3 +57,22 @@ def test_bench_staged_scene_sums_its_stages(tmp_path, capsys):
         0.05 * res["wall_steps"] + 1e-3
     )
     assert "| tiny_stages |" in (tmp_path / "results.md").read_text()
+
+
+def test_bench_solver_overrides_reach_the_run_and_are_recorded(tmp_path, capsys):
+    assert main(["bench", "--only", "tiny", "-o", str(tmp_path), "--solver", "newton_tol=0.05"]) == 0
+    res = json.loads((tmp_path / "tiny.json").read_text())
+    assert res["solver_overrides"] == {"newton_tol": 0.05}
+    assert json.loads((tmp_path / "suite.json").read_text())["solver_overrides"] == {"newton_tol": 0.05}
+    # the tiny scene's own tolerance is 0.5: a tenfold tighter one must show in the recorded decrements
+    stats = json.loads((tmp_path / "tiny" / "stats.json").read_text())
+    finals = [r["newton_decrement"] for r in stats["steps"] if not r.get("initial")]
+    assert finals and max(finals) <= 0.05
+
+
+def test_bench_bad_solver_override_stops_before_any_run(tmp_path, capsys):
+    for bad in ("contact_lookahead=0.5", "no_such_key=1", "newton_tol"):
+        assert main(["bench", "--only", "tiny", "-o", str(tmp_path), "--solver", bad]) == 2
+        err = capsys.readouterr().err
+        assert "--solver" in err and bad.split("=")[0] in err
+    assert not (tmp_path / "tiny.json").exists()
