@@ -163,6 +163,7 @@ class StepSolver:
         self._may_extend = False  # whether this iteration's full step may be extended (see _extrapolate)
         self._lookahead = False  # whether this iteration's search matrix sees pairs beyond d̂ (contact_lookahead)
         self._cut_sweep = None  # sweep candidates of the last move CCD cut short (contact_lookahead)
+        self._lookahead_used = False  # whether this iteration's search matrix held look-ahead blocks
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
@@ -261,8 +262,9 @@ class StepSolver:
                 extra = s.contact.lookahead_hessian_blocks(
                     ev, s.collision_vertex_to_free, reach, LOOKAHEAD_STIFFNESS, self._cut_sweep
                 )
-                if extra is not None:
+                if extra is not None and len(extra[0]):
                     block_verts, blocks = np.concatenate([block_verts, extra[0]]), np.concatenate([blocks, extra[1]])
+                    self._lookahead_used = True
             return g, s.contact_pattern.assemble_blocks(data, block_verts, blocks)
         return g, s.contact_pattern.assemble(data, s.contact.hessian(ev), s.collision_dof_to_free)
 
@@ -589,8 +591,9 @@ class StepSolver:
             interrupts.checkpoint()  # a SIGTERM or Ctrl-C recorded during the last iteration stops here
             res.iterations = it
             t = time.perf_counter()
-            res.lookahead_iterations += self._lookahead
+            self._lookahead_used = False
             g_full, H = self._derivatives(x, x_prev, ev)
+            res.lookahead_iterations += self._lookahead_used
             g = g_full[free]
             if self._held is not None:
                 g[self._held] = 0.0
@@ -607,7 +610,7 @@ class StepSolver:
                 p_free, tool_move = self._direction(H, g, res), 0.0
             res.decrement = max(self._measure(p_free), tool_move) / sqrt_h
             converged = res.decrement <= cfg.tol
-            if converged and self._lookahead:  # a majorant's direction: the next iteration, exact, judges
+            if converged and self._lookahead_used:  # a majorant's direction: the next iteration, exact, judges
                 converged, self._lookahead = False, False
             if converged and not tools and s.contact_pattern is not None and s.contact_pattern.last_folded:
                 # the matrix was a folded majorant: judge convergence on the exact Newton direction

@@ -66,3 +66,18 @@ def test_integer_lookahead_is_accepted():
     d = _pressed_ball(0.0)
     d["solver"]["contact_lookahead"] = 3
     assert scene_from_dict(d).solver.contact_lookahead == 3.0
+
+
+def test_a_lookahead_with_nothing_to_add_changes_nothing(tmp_path):
+    # the ipctk barrier has no look-ahead blocks: the setting may switch the look-ahead on, but an iteration whose
+    # matrix got no extra block is exact, so it counts as none and its "converged" verdict stands
+    steps = {}
+    for la in (0.0, 3.0):
+        d = _pressed_ball(la)
+        d["time"]["steps"] = 4
+        d["solver"]["check_every_iterate"] = False
+        d["contact"]["barrier"] = "ipctk"
+        recs = simulate(scene_from_dict(d), tmp_path / f"la{la:g}", progress=False).step_records
+        assert all(r["lookahead_iterations"] == 0 for r in recs)
+        steps[la] = [r["newton_iterations"] for r in recs]
+    assert steps[3.0] == steps[0.0]
