@@ -62,10 +62,10 @@ def _positive_scaling(diagonal: np.ndarray) -> np.ndarray:
 #: pairs that sit within d̂ from the start blocked most extensions).
 EXTEND_GAP_SHARE = 0.5
 
-#: Contact look-ahead (``NewtonSettings.contact_lookahead``): switched on for the rest of a time step once an
-#: accepted step was cut by CCD below this fraction of the Newton step, and its barrier's stiffness as a share of κ
-#: (bunny_700: shares 1, 0.1, 0.01, 0.001 gave 279, 229, 208, 219 Newton iterations against 240 without; 0.01 at
-#: reach 3: 199).
+#: Contact look-ahead (``NewtonSettings.contact_lookahead``): on for the next iteration after an accepted step that
+#: CCD cut below this fraction of the Newton step (and so on while the cuts go on), and its barrier's stiffness as a
+#: share of κ (bunny_700: shares 1, 0.1, 0.01, 0.001 gave 279, 229, 208, 219 Newton iterations against 240 without;
+#: 0.01 at reach 3: 199).
 LOOKAHEAD_TRIGGER = 0.5
 LOOKAHEAD_STIFFNESS = 0.01
 
@@ -548,7 +548,7 @@ class StepSolver:
         self._constraint = s.step_constraint
         self._held = None
         self._skip_stencils = {}
-        self._lookahead = False  # the search matrix's contact look-ahead, on once CCD cuts a step short
+        self._lookahead = False  # the search matrix's contact look-ahead, on after a step CCD cut short
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
         try:
@@ -636,8 +636,8 @@ class StepSolver:
             if accepted:
                 x, ev, energy, el, bar = trial
                 res.alphas.append(alpha)
-                if cfg.contact_lookahead > 1.0 and alpha_ccd < LOOKAHEAD_TRIGGER and ev is not None:
-                    self._lookahead = True
+                # on while CCD keeps cutting the moves short, off again after a move it lets through
+                self._lookahead = cfg.contact_lookahead > 1.0 and alpha_ccd < LOOKAHEAD_TRIGGER and ev is not None
             else:
                 res.alphas.append(0.0)
                 if not converged:

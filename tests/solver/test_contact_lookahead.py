@@ -81,3 +81,11 @@ def test_a_lookahead_with_nothing_to_add_changes_nothing(tmp_path):
         assert all(r["lookahead_iterations"] == 0 for r in recs)
         steps[la] = [r["newton_iterations"] for r in recs]
     assert steps[3.0] == steps[0.0]
+
+
+def test_lookahead_only_follows_a_cut_step(runs):
+    # the look-ahead is on only in an iteration right after an accepted move that CCD cut below half the Newton
+    # step: never more look-ahead iterations in a step than such cut moves before its last iteration
+    for r in runs[3.0].step_records:
+        cut = sum(1 for a, c in zip(r["alphas"][:-1], r["ccd_alphas"][:-1], strict=True) if a > 0 and c < 0.5)
+        assert r["lookahead_iterations"] <= cut
