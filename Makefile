@@ -10,8 +10,8 @@ STAMP  := $(VENV)/.installed
 venv: $(STAMP)
 
 # Packages go in with uv (itself a PyPI wheel; MIT/Apache-2.0), which fetches and unpacks the wheels in parallel and
-# byte-compiles them on every core: the core install took 11 s against pip's 27 s on the 2-core VM, cold caches
-# (docs/benchmarks.md, "Time to first result"). uv does not read pip's settings: the index, extra index, find-links
+# byte-compiles them on every core (`make test`'s install): the core install took 11 s against pip's 27 s on the
+# 2-core VM, cold caches (docs/benchmarks.md, "Time to first result"). uv does not read pip's settings: the index, extra index, find-links
 # and CA bundle given to pip in the environment are passed on, and uv also trusts the system's certificates. Where
 # uv cannot be installed or fails, pip does the same install.
 UV_ENV = export UV_LINK_MODE=copy UV_SYSTEM_CERTS=1; \
@@ -19,17 +19,29 @@ UV_ENV = export UV_LINK_MODE=copy UV_SYSTEM_CERTS=1; \
 	[ -z "$${PIP_EXTRA_INDEX_URL:-}" ] || export UV_EXTRA_INDEX_URL="$$PIP_EXTRA_INDEX_URL"; \
 	[ -z "$${PIP_FIND_LINKS:-}" ] || export UV_FIND_LINKS="$$PIP_FIND_LINKS"; \
 	[ -z "$${PIP_CERT:-}" ] || export SSL_CERT_FILE="$$PIP_CERT"
-INSTALL = $(UV_ENV); if [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode \
-	-e '$(1)'; then :; else $(BIN)/pip install --quiet --upgrade pip && $(BIN)/pip install --quiet -e '$(1)'; fi
+INSTALL = $(UV_ENV); if [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python $(2) -e '$(1)' pip; \
+	then :; else { $(BIN)/python -m pip --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --upgrade --default-pip; } \
+	&& $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet -e '$(1)'; fi
+
+# The venv is created without pip (`python -m venv` spends 3.6 s of the 2-core Intel VM installing and byte-compiling
+# pip) and uv's binary is fetched by the system's pip into a scratch folder (`--target`: nothing is installed into
+# the system's Python); uv then puts pip into the venv with everything else. Without a system pip, the venv's own
+# (ensurepip) installs uv, as before.
+GET_UV = $(UV_ENV); [ -x $(BIN)/uv ] || { $(PYTHON) -m pip install --quiet --disable-pip-version-check \
+	--target $(VENV)/.uv-bootstrap uv >/dev/null 2>&1 && cp $(VENV)/.uv-bootstrap/bin/uv $(BIN)/uv; \
+	rm -rf $(VENV)/.uv-bootstrap; [ -x $(BIN)/uv ]; } || { $(BIN)/python -m ensurepip --upgrade --default-pip \
+	>/dev/null && $(BIN)/python -m pip install --quiet uv; } || echo "make: uv not available, installing with pip"
 
 # what a run needs (idp and CHOLMOD): enough for `make demo`, and about half the install time of everything
 $(CORE): pyproject.toml
-	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 15 s)"
-	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet uv || echo "make: uv not available, installing with pip"
+	@echo "make: creating $(VENV) and installing idp with its dependencies (first time only, about 10 s)"
+	$(PYTHON) -m venv --without-pip $(VENV)
+	@echo "installing uv into $(VENV) (pip if that fails)"
+	@$(GET_UV)
 	@echo "uv pip install -e '.[cholmod]' (pip if uv fails)"
-	@$(call INSTALL,.[cholmod])
-	$(BIN)/python -c "from idp._bytecode import compile_package; compile_package()"  # as a wheel install does
+	@$(call INSTALL,.[cholmod],)
+	@# as installing wheels does, but only for idp and what a run imports (make test's install compiles the rest)
+	$(BIN)/python -m idp._bytecode
 	touch $(CORE)
 
 # everything: tests, static checks and the optional extras (USD, remeshing, Dask batches)
@@ -38,7 +50,9 @@ ALL_EXTRAS := cholmod,test,lint,usd,remesh,batch
 $(STAMP): $(CORE)
 	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
 	@echo "uv pip install -e '.[$(ALL_EXTRAS)]' (pip if uv fails)"
-	@$(call INSTALL,.[$(ALL_EXTRAS)])
+	@$(call INSTALL,.[$(ALL_EXTRAS)],)
+	@# byte-compiles what the first install left (uv's --compile-bytecode only reaches the packages it installs)
+	$(BIN)/python -m compileall -q -j 0 -x '/tests?/' "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" >/dev/null || true
 	touch $(STAMP)
 
 # the first run on a machine compiles the numba kernels (about half a minute on 2 cores, shown as a progress bar);
