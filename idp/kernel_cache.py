@@ -110,7 +110,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel(  # element energies, gradients, Hessians; or (fused assembly) added per vertex-row part into the matrix
             _E,
             "_element_pass",
-            "(float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1], float64[::1],"
+            "(int64, int64, float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[::1], int64, float64[::1],"
+            " float64[::1],"
             " boolean, boolean, boolean, float64, float64[::1], float64[:, ::1], float64[:, :, ::1], int64[::1],"
             " int64[::1], int64[::1], int32[:, :, ::1], int32[:, :, ::1], float64, float64[::1], float64[::1])",
             17.0,
@@ -118,7 +119,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel(
             "idp.energies.inversion_filter",
             "_filter_kernel",
-            "(float64[:, ::1], float64[:, ::1], int64[:, ::1], float64, float64[::1], float64[::1])",
+            "(int64, int64, float64[:, ::1], float64[:, ::1], int64[:, ::1], float64, float64[::1], float64[::1])",
             1.3,
         ),
     ),
@@ -157,8 +158,9 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         ),
         Kernel(
             _CB,
-            "_classify",
-            "(float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], float64[::1], int64[::1],"
+            "_classify_range",
+            "(int64, int64, float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1],"
+            " float64[::1], int64[::1],"
             " float64[::1], float64[::1])",
             6.7,
         ),
@@ -171,22 +173,25 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         ),
         Kernel(
             _CB,
-            "_values",
-            "(float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1], float64,"
+            "_values_chunk",
+            "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
+            " float64,"
             " float64[::1])",
             3.1,
         ),
         Kernel(
             _CB,
-            "_gradients",
-            "(float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1], float64,"
+            "_gradients_chunk",
+            "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
+            " float64,"
             " float64[:, ::1])",
             3.0,
         ),
         Kernel(
             _CB,
-            "_hessians",
-            "(float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1], float64, float64,"
+            "_hessian_chunk",
+            "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
+            " float64, float64,"
             " int64[::1], boolean, int32[:, ::1], float64[:, :, ::1])",
             13.1,
         ),

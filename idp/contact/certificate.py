@@ -129,7 +129,7 @@ class Certifier:
         if n == 0:
             return math.inf
         sqd = np.empty(n)
-        compiled_barrier._classify(
+        compiled_barrier.classify(
             vs,
             self._faces,
             self._edges,

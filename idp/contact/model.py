@@ -290,7 +290,7 @@ class ContactModel:
         n = fv.shape[0] + ee.shape[0]
         ctype, sqd, eps = np.empty(n, np.int64), np.empty(n), np.empty(n)
         if n:
-            self._cb._classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
+            self._cb.classify(vs, self._faces, self._edges, fv, ee, self._edge_rest_len2, ctype, sqd, eps)
         return sqd
 
     def _candidates(

@@ -32,9 +32,10 @@ Per model, in closed forms that stay finite at s_i = s_j:
 Local DOF order of an element block: [x0_0, .., x0_{d-1}, x1_0, ...] (vertex-major).
 
 `element_terms` (per-element outputs) and `element_terms_scatter` (added straight into the Newton matrix) are the
-hot path, both through one compiled `_element_pass` (prange over chunks of elements or parts of the vertex rows,
-scratch arrays allocated once per chunk); `element_terms_reference` is a plain vectorised numpy version
-built along a different route (explicit dF/dx matrix, LAPACK SVD/eigh) kept for tests.
+hot path, both through one compiled `_element_pass` (chunks of elements or parts of the vertex rows, split
+over threads by `idp.threaded.run_in_parts`; scratch arrays allocated once per chunk); `element_terms_reference`
+is a plain vectorised numpy version built along a different route (explicit dF/dx matrix, LAPACK SVD/eigh) kept
+for tests.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from numba import njit, prange
 
 from idp._small_dense import symmetric_eigen_jacobi
 from idp.energies._pnorm_kernels import power_tail, rest_value, sigma_gradient
+from idp.threaded import run_in_parts
 
 NEO_HOOKEAN = 0
 SYMMETRIC_DIRICHLET = 1
@@ -436,9 +438,7 @@ def _element_chunk(
     hess_out: np.ndarray,
 ) -> None:
     """Serial body of `element_terms` for elements [q_begin, q_end) (scratch allocated once): element
-    t = q, or t = ids[q] when ``ids`` is not empty; its outputs go to row q − out_shift.
-
-    Kept out of the prange loop so numba's parallel passes see a tiny loop (fast compile)."""
+    t = q, or t = ids[q] when ``ids`` is not empty; its outputs go to row q − out_shift."""
     d = x.shape[1]
     k = (d + 1) * d
     barrier = model == NEO_HOOKEAN or model == SYMMETRIC_DIRICHLET
@@ -752,8 +752,10 @@ def _scatter_part(
                             data[p0 + i * st + j] += weight * h_buf[o, d * a + i, d * b + j]
 
 
-@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _element_pass(
+    u0,
+    u1,
     x,
     elements,
     dm_inv,
@@ -777,15 +779,15 @@ def _element_pass(
     data,
     grad,
 ):  # pragma: no cover
-    """:func:`element_terms` (``part_ptr`` empty) or :func:`element_terms_scatter` in one compiled entry point with
-    one parallel loop: numba links every callee into each entry point's library and optimises and generates its
-    code again there, so two entry points over the same element chunk cost two compilations of it (the two took
-    16.9 + 8.6 s of the first run's compile work on the Intel VM)."""
+    """Units ``[u0, u1)`` of :func:`element_terms` (``part_ptr`` empty; a unit is a chunk of CHUNK elements) or of
+    :func:`element_terms_scatter` (a unit is a part of the vertex rows), in one compiled entry point run on threads
+    by :func:`idp.threaded.run_in_parts`: numba links every callee into each entry point's library and optimises
+    and generates its code again there, so two entry points over the same element chunk cost two compilations of
+    it (the two took 16.9 + 8.6 s of the first run's compile work on the Intel VM), and a ``prange`` loop once more."""
     scatter = part_ptr.size > 0
     m = elements.shape[0]
-    units = part_ptr.size - 1 if scatter else (m + CHUNK - 1) // CHUNK
     no_ids = np.empty(0, np.int64)
-    for u in prange(units):
+    for u in range(u0, u1):
         if scatter:
             _scatter_part(
                 np.int64(u),
@@ -862,7 +864,9 @@ def element_terms(
     (paper eq. 9, :mod:`idp.energies._pnorm_kernels`); 1 is the plain energy.  Parallel over chunks of
     CHUNK elements; every element writes only its own output rows (no races).
     """
-    _element_pass(
+    run_in_parts(
+        _element_pass,
+        (elements.shape[0] + CHUNK - 1) // CHUNK,
         x,
         elements,
         dm_inv,
@@ -885,6 +889,7 @@ def element_terms(
         0.0,
         _NO_VALUES,
         _NO_VALUES,
+        grain=4,  # ≈ 0.3 ms of work a part (≈ 76 µs a chunk of neo-Hookean tetrahedra; see idp.threaded)
     )
 
 
@@ -920,7 +925,9 @@ def element_terms_scatter(
     if part_ptr.size < 2:  # no part: nothing to add (an empty part_ptr would select element_terms' loop)
         return
     k = elements.shape[1] * x.shape[1]
-    _element_pass(
+    run_in_parts(
+        _element_pass,
+        part_ptr.size - 1,
         x,
         elements,
         dm_inv,

@@ -11,7 +11,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from idp.threaded import run_in_parts
 
 _CHUNK = 256
 
@@ -77,42 +79,46 @@ def _first_root(c3: float, c2: float, c1: float, c0: float) -> float:
     return 1.0
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False)
 def _filter_kernel(
-    x: np.ndarray, p: np.ndarray, elements: np.ndarray, eta: float, alpha: np.ndarray, vol0: np.ndarray
+    t0: int,
+    t1: int,
+    x: np.ndarray,
+    p: np.ndarray,
+    elements: np.ndarray,
+    eta: float,
+    alpha: np.ndarray,
+    vol0: np.ndarray,
 ) -> None:
-    """Per element: alpha (first root in (0,1] of det(Ds + s dDs) - eta det(Ds)) and det(Ds)."""
-    m = elements.shape[0]
+    """Per element t in [t0, t1): alpha (first root in (0,1] of det(Ds + s dDs) - eta det(Ds)) and det(Ds)."""
     d = x.shape[1]
-    nchunk = (m + _CHUNK - 1) // _CHUNK
-    for ch in prange(nchunk):
-        A = np.empty((3, 3))
-        B = np.empty((3, 3))
-        for t in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
-            i0 = elements[t, 0]
-            for a in range(d):
-                ia = elements[t, a + 1]
-                for r in range(d):
-                    A[r, a] = x[ia, r] - x[i0, r]
-                    B[r, a] = p[ia, r] - p[i0, r]
-            if d == 2:
-                c0 = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-                c1 = (B[0, 0] * A[1, 1] - A[0, 1] * B[1, 0]) + (A[0, 0] * B[1, 1] - B[0, 1] * A[1, 0])
-                c2 = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
-                c3 = 0.0
-            else:
-                # multilinear expansion of det([a0 + s b0, a1 + s b1, a2 + s b2]) by columns
-                c0 = _det3(A, A, A)
-                c1 = _det3(B, A, A) + _det3(A, B, A) + _det3(A, A, B)
-                c2 = _det3(A, B, B) + _det3(B, A, B) + _det3(B, B, A)
-                c3 = _det3(B, B, B)
-            vol0[t] = c0
-            if not (c0 > 0.0):
-                alpha[t] = 0.0
-                continue
-            # normalise by c0 for scale-free tolerances
-            inv = 1.0 / c0
-            alpha[t] = _first_root(c3 * inv, c2 * inv, c1 * inv, 1.0 - eta)
+    A = np.empty((3, 3))
+    B = np.empty((3, 3))
+    for t in range(t0, t1):
+        i0 = elements[t, 0]
+        for a in range(d):
+            ia = elements[t, a + 1]
+            for r in range(d):
+                A[r, a] = x[ia, r] - x[i0, r]
+                B[r, a] = p[ia, r] - p[i0, r]
+        if d == 2:
+            c0 = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+            c1 = (B[0, 0] * A[1, 1] - A[0, 1] * B[1, 0]) + (A[0, 0] * B[1, 1] - B[0, 1] * A[1, 0])
+            c2 = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
+            c3 = 0.0
+        else:
+            # multilinear expansion of det([a0 + s b0, a1 + s b1, a2 + s b2]) by columns
+            c0 = _det3(A, A, A)
+            c1 = _det3(B, A, A) + _det3(A, B, A) + _det3(A, A, B)
+            c2 = _det3(A, B, B) + _det3(B, A, B) + _det3(B, B, A)
+            c3 = _det3(B, B, B)
+        vol0[t] = c0
+        if not (c0 > 0.0):
+            alpha[t] = 0.0
+            continue
+        # normalise by c0 for scale-free tolerances
+        inv = 1.0 / c0
+        alpha[t] = _first_root(c3 * inv, c2 * inv, c1 * inv, 1.0 - eta)
 
 
 @njit(cache=True)
@@ -148,7 +154,9 @@ def max_inversion_free_step(x: np.ndarray, p: np.ndarray, elements: np.ndarray, 
         return 1.0
     alpha = np.empty(m)
     vol0 = np.empty(m)
-    _filter_kernel(x, p, elements, float(eta), alpha, vol0)
+    run_in_parts(
+        _filter_kernel, elements.shape[0], x, p, elements, float(eta), alpha, vol0, grain=4096
+    )  # ≈ 0.3 ms a part (65 ns an element)
     bad = np.flatnonzero(~(vol0 > 0.0))
     if bad.size:
         t = int(bad[0])

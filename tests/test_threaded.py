@@ -1,0 +1,100 @@
+"""idp.threaded: a compiled kernel run over parts of a range on threads gives what one call over the range gives."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import numpy as np
+import pytest
+from numba import njit
+
+from idp import threaded
+
+
+@njit(nogil=True, cache=False)
+def _square_plus_part(i0, i1, a, out, first):  # pragma: no cover - compiled
+    for i in range(i0, i1):
+        out[i] = a[i] * a[i]
+        first[i] = i0
+
+
+@njit(nogil=True, cache=False)
+def _fail_after(i0, i1, limit, out):  # pragma: no cover - compiled
+    for i in range(i0, i1):
+        out[i] = 1.0
+    if i0 >= limit:
+        raise ValueError("part past the limit")
+
+
+def _run(n: int, threads: int, grain: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    a = np.linspace(-1.0, 1.0, max(n, 1))
+    out, first = np.full(max(n, 1), np.nan), np.full(max(n, 1), -1, np.int64)
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        threaded.run_in_parts(_square_plus_part, n, a, out, first, grain=grain)
+    finally:
+        numba.set_num_threads(previous)
+    return out, first
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])
+def test_every_item_once_whatever_the_thread_count(n: int) -> None:
+    expected = np.linspace(-1.0, 1.0, n) ** 2
+    for threads in sorted({1, numba.config.NUMBA_NUM_THREADS}):
+        out, first = _run(n, threads)
+        np.testing.assert_array_equal(out[:n], expected)  # each item by the same code: identical
+        parts = np.unique(first[:n])
+        assert parts.size == min(threads, n)  # one contiguous part per thread
+        assert parts[0] == 0
+
+
+def test_a_range_below_two_grains_stays_on_the_calling_thread() -> None:
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one thread: every range is one part")
+    _, first = _run(100, 2, grain=64)
+    assert np.all(first[:100] == 0)
+    _, first = _run(128, 2, grain=64)
+    assert np.unique(first[:128]).tolist() == [0, 64]
+
+
+def test_nothing_to_do() -> None:
+    out, first = _run(0, numba.config.NUMBA_NUM_THREADS)
+    assert np.isnan(out).all() and (first == -1).all()
+
+
+def test_an_error_in_a_part_is_raised_after_every_part_finished() -> None:
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two threads")
+    out = np.zeros(100)
+    with pytest.raises(ValueError, match="past the limit"):
+        threaded.run_in_parts(_fail_after, 100, 1, out)  # the second part raises
+    assert np.all(out == 1.0)  # the first part ran to its end
+    threaded.run_in_parts(_fail_after, 100, 1000, out)  # the workers still serve later calls
+
+
+def test_calls_from_two_threads_at_once() -> None:
+    n = 200_000
+    a = np.linspace(0.0, 1.0, n)
+    results: list[np.ndarray] = []
+    errors: list[BaseException] = []
+
+    def call() -> None:
+        try:
+            for _ in range(20):
+                out, first = np.empty(n), np.empty(n, np.int64)
+                threaded.run_in_parts(_square_plus_part, n, a, out, first)
+                results.append(out)
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=call) for _ in range(2)]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join()
+    assert not errors
+    assert len(results) == 40
+    for out in results:
+        np.testing.assert_array_equal(out, a * a)
