@@ -57,9 +57,12 @@ def compile_run_imports(half: int | None = None) -> bool:
         child = subprocess.Popen([sys.executable, "-m", "idp._bytecode", "1"], stdin=subprocess.DEVNULL)
         ok = compile_package() and compile_run_imports(0)
         return child.wait() == 0 and ok
-    sys.dont_write_bytecode = False
-    for name in RUN_IMPORTS[half]:
-        importlib.import_module(name)
+    previous, sys.dont_write_bytecode = sys.dont_write_bytecode, False
+    try:
+        for name in RUN_IMPORTS[half]:
+            importlib.import_module(name)
+    finally:
+        sys.dont_write_bytecode = previous
     ok = True
     for name in COMPILER_PACKAGES if half == 1 else ():
         spec = importlib.util.find_spec(name)

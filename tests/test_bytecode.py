@@ -1,9 +1,11 @@
-"""idp._bytecode: the package's modules byte-compiled as a wheel install leaves them."""
+"""idp._bytecode: idp and what a run imports byte-compiled, as a wheel install leaves them."""
 
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
+
+import pytest
 
 import idp
 from idp import _bytecode
@@ -24,3 +26,29 @@ def test_unwritable_package_is_left_alone(monkeypatch) -> None:
 
     monkeypatch.setattr(_bytecode.compileall, "compile_dir", refuse)
     assert _bytecode.compile_package() is False
+
+
+def test_what_a_run_imports_gets_bytecode() -> None:
+    """``python -m idp._bytecode`` (make's first install): the modules a run imports, idp's own and numba's
+    compiler passes (imported only while compiling kernels) end up byte-compiled, even with
+    PYTHONDONTWRITEBYTECODE set."""
+    import os
+    import subprocess
+    import sys
+
+    import meshio
+    import numba.core.typed_passes
+    import scipy.sparse
+
+    pycs = [
+        Path(importlib.util.cache_from_source(str(m.__file__)))
+        for m in (meshio, numba.core.typed_passes, scipy.sparse, idp)
+    ]
+    if not all(os.access(p.parent, os.W_OK) for p in pycs):
+        pytest.skip("a read-only install: nothing is written there")
+    for p in pycs:
+        p.unlink(missing_ok=True)
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
+    subprocess.run([sys.executable, "-m", "idp._bytecode"], check=True, env=env, timeout=300)
+    for p in pycs:
+        assert p.is_file(), f"no bytecode {p}"
