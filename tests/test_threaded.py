@@ -11,6 +11,8 @@ from numba import njit
 
 from idp import threaded
 
+MAX_THREADS = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+
 
 @njit(nogil=True, cache=False)
 def _square_plus_part(i0, i1, a, out, first):  # pragma: no cover - compiled
@@ -42,7 +44,7 @@ def _run(n: int, threads: int, grain: int = 1) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("n", [1, 2, 7, 1000])
 def test_every_item_once_whatever_the_thread_count(n: int) -> None:
     expected = np.linspace(-1.0, 1.0, n) ** 2
-    for threads in sorted({1, numba.config.NUMBA_NUM_THREADS}):
+    for threads in sorted({1, MAX_THREADS}):
         out, first = _run(n, threads)
         np.testing.assert_array_equal(out[:n], expected)  # each item by the same code: identical
         parts = np.unique(first[:n])
@@ -51,7 +53,7 @@ def test_every_item_once_whatever_the_thread_count(n: int) -> None:
 
 
 def test_a_range_below_two_grains_stays_on_the_calling_thread() -> None:
-    if numba.config.NUMBA_NUM_THREADS < 2:
+    if MAX_THREADS < 2:
         pytest.skip("one thread: every range is one part")
     _, first = _run(100, 2, grain=64)
     assert np.all(first[:100] == 0)
@@ -60,12 +62,12 @@ def test_a_range_below_two_grains_stays_on_the_calling_thread() -> None:
 
 
 def test_nothing_to_do() -> None:
-    out, first = _run(0, numba.config.NUMBA_NUM_THREADS)
+    out, first = _run(0, MAX_THREADS)
     assert np.isnan(out).all() and (first == -1).all()
 
 
 def test_an_error_in_a_part_is_raised_after_every_part_finished() -> None:
-    if numba.config.NUMBA_NUM_THREADS < 2:
+    if MAX_THREADS < 2:
         pytest.skip("needs two threads")
     out = np.zeros(100)
     with pytest.raises(ValueError, match="past the limit"):
