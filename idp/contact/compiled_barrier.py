@@ -56,8 +56,6 @@ from idp.contact._distance_kernels import (
 from idp.contact._psd_projection import WORK_ROWS, project_psd
 from idp.threaded import run_in_parts
 
-#: Collisions per parallel work item (scratch arrays allocated once per chunk).
-CHUNK = 64
 #: Fewest items per thread of a kernel run in parts (idp.threaded): about 0.3 ms of work on the 2-core Intel VM
 #: (classification 56 ns a candidate, value 57 ns, gradient 107 ns, Hessian block 1.9 µs a collision), since
 #: handing a part to a thread costs ≈ 0.1 ms there; a smaller range runs on the calling thread alone.

@@ -17,18 +17,16 @@ made PSD by ``project_psd`` (unchanged when already PSD).  Local DOF order is ve
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from idp.contact._psd_projection import WORK_ROWS, project_psd
-
-#: Triangles per parallel work item; scratch arrays are allocated once per chunk.
-CHUNK = 64
+from idp.threaded import run_in_parts
 
 # edge i (0: x1-x0, 1: x2-x0) as a combination of the vertices: e_i = Σ_a _SEL[a, i] x_a
 _SEL = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _membrane_chunk(
     t0: int,
     t1: int,
@@ -131,7 +129,6 @@ def _membrane_chunk(
             project_psd(H, 9, work)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def membrane_terms(
     x: np.ndarray,
     tris: np.ndarray,
@@ -149,24 +146,24 @@ def membrane_terms(
 ) -> None:
     """Fill per-triangle energy (m,), gradient (m,9) and Hessian (m,9,9) (the last two if asked).
 
-    Parallel over chunks of CHUNK triangles; each triangle writes only its own output rows."""
+    Split over threads in contiguous parts (:func:`idp.threaded.run_in_parts`); each triangle writes only its own
+    output rows."""
     m = tris.shape[0]
-    nchunk = (m + CHUNK - 1) // CHUNK
-    for ch in prange(nchunk):
-        _membrane_chunk(
-            ch * CHUNK,
-            min(m, (ch + 1) * CHUNK),
-            x,
-            tris,
-            rest_metric,
-            rest_metric_inv,
-            weight,
-            mu,
-            lam,
-            want_grad,
-            want_hess,
-            project,
-            energy_out,
-            grad_out,
-            hess_out,
-        )
+    run_in_parts(
+        _membrane_chunk,
+        m,
+        x,
+        tris,
+        rest_metric,
+        rest_metric_inv,
+        weight,
+        mu,
+        lam,
+        want_grad,
+        want_hess,
+        project,
+        energy_out,
+        grad_out,
+        hess_out,
+        grain=256 if want_hess else 4096,  # ≈ 0.3 ms of work a part (idp.threaded)
+    )

@@ -15,8 +15,6 @@ from numba import njit
 
 from idp.threaded import run_in_parts
 
-_CHUNK = 256
-
 
 @njit(cache=True)
 def _cubic(c3: float, c2: float, c1: float, c0: float, s: float) -> float:
