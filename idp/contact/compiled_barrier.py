@@ -466,24 +466,17 @@ def _accumulate_gradient(verts, local_grads, out):  # pragma: no cover - compile
                 out[3 * v + r] += local_grads[c, 3 * a + r]
 
 
+def _collision_arrays(cs: CollisionSet, dhat: float) -> tuple:
+    """The per-collision arguments of the value, gradient and Hessian kernels, and d̂²."""
+    return cs.verts, cs.kind, cs.local, cs.eps, cs.weight, float(dhat) ** 2
+
+
 def barrier_value(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float) -> float:
     """κ Σ m b(d) over the collision set at positions ``V``."""
     if len(cs) == 0:
         return 0.0
     out = np.empty(len(cs))
-    run_in_parts(
-        _values_chunk,
-        len(cs),
-        V,
-        cs.verts,
-        cs.kind,
-        cs.local,
-        cs.eps,
-        cs.weight,
-        float(dhat) ** 2,
-        out,
-        grain=GRAIN_VALUES,
-    )
+    run_in_parts(_values_chunk, len(cs), V, *_collision_arrays(cs, dhat), out, grain=GRAIN_VALUES)
     return float(kappa * out.sum())
 
 
@@ -493,19 +486,7 @@ def barrier_gradient(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float)
     if len(cs) == 0:
         return g
     local = np.empty((len(cs), 12))
-    run_in_parts(
-        _gradients_chunk,
-        len(cs),
-        V,
-        cs.verts,
-        cs.kind,
-        cs.local,
-        cs.eps,
-        cs.weight,
-        float(dhat) ** 2,
-        local,
-        grain=GRAIN_GRADIENTS,
-    )
+    run_in_parts(_gradients_chunk, len(cs), V, *_collision_arrays(cs, dhat), local, grain=GRAIN_GRADIENTS)
     _accumulate_gradient(cs.verts, local, g)
     return kappa * g
 
@@ -527,12 +508,7 @@ def barrier_hessian_blocks(
             _hessian_chunk,
             m,
             V,
-            cs.verts,
-            cs.kind,
-            cs.local,
-            cs.eps,
-            cs.weight,
-            float(dhat) ** 2,
+            *_collision_arrays(cs, dhat),
             float(kappa),
             np.ascontiguousarray(vertex_map, dtype=np.int64),
             bool(project),
