@@ -47,9 +47,7 @@ class Kernel:
     module: str
     name: str
     signature: str  # numba type names, e.g. "(float64[:, ::1], int64)"
-    # compile seconds (one process, empty cache; the large ones measured on the 2-core Intel VM on 2026-11-28, the
-    # small ones on the AMD VM before): the order in which the two processes take the work, largest first
-    cost: float
+    cost: float  # compile seconds measured on the reference machine (2-core AMD EPYC VM): the order of the work
     # chosen at run time between this entry and another one (thread count, sizes): a run may call either; or called
     # only on a path that some runs of the scene never take (so a run may call neither)
     alternative: bool = False
@@ -116,13 +114,13 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             " float64[::1],"
             " boolean, boolean, boolean, float64, float64[::1], float64[:, ::1], float64[:, :, ::1], int64[::1],"
             " int64[::1], int64[::1], int32[:, :, ::1], int32[:, :, ::1], float64, float64[::1], float64[::1])",
-            16.2,
+            17.0,
         ),
         Kernel(
             "idp.energies.inversion_filter",
             "_filter_kernel",
             "(int64, int64, float64[:, ::1], float64[:, ::1], int64[:, ::1], float64, float64[::1], float64[::1])",
-            0.8,
+            1.3,
         ),
     ),
     # shells with an elastic material: membrane and bending
@@ -133,14 +131,14 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int64, int64, float64[:, ::1], int64[:, ::1], float64[:, :, ::1], float64[:, :, ::1], float64[::1],"
             " float64[::1], float64[::1], boolean, boolean, boolean, float64[::1], float64[:, ::1],"
             " float64[:, :, ::1])",
-            11.5,
+            8.0,
         ),
         Kernel(
             "idp.energies._bending_kernels",
             "_bending_chunk",
             "(int64, int64, float64[:, ::1], int64[:, ::1], float64[::1], float64[::1], boolean, boolean, boolean,"
             " boolean, float64[::1], float64[:, ::1], float64[:, :, ::1])",
-            15.5,
+            8.0,
         ),
         Kernel("idp.energies._bending_kernels", "hinge_angles", "(float64[:, ::1], int64[:, ::1], float64[::1])", 0.5),
         Kernel(  # membrane and bending blocks into the Newton matrix
@@ -157,7 +155,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "_run",
             "(float64[:, ::1], float64[:, ::1], boolean, int32[:, ::1], int32[:, ::1], int64, uint8[::1], float64,"
             " int64, float64, int64, int64, int64, float64, float64, float64)",
-            27.0,
+            8.8,
         ),
         Kernel(
             _CB,
@@ -165,14 +163,14 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int64, int64, float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1],"
             " float64[::1], int64[::1],"
             " float64[::1], float64[::1])",
-            4.0,
+            6.7,
         ),
         Kernel(
             _CB,
             "_compact",
             "(int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int64[::1], float64[::1], float64[::1],"
             " float64, int64)",
-            4.6,
+            2.8,
         ),
         Kernel(
             _CB,
@@ -180,7 +178,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
             " float64,"
             " float64[::1])",
-            1.3,
+            3.1,
         ),
         Kernel(
             _CB,
@@ -188,7 +186,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
             " float64,"
             " float64[:, ::1])",
-            1.9,
+            3.0,
         ),
         Kernel(
             _CB,
@@ -196,7 +194,7 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "(int64, int64, float64[:, ::1], int32[:, ::1], int8[::1], int8[:, ::1], float64[::1], float64[::1],"
             " float64, float64,"
             " int64[::1], boolean, int32[:, ::1], float64[:, :, ::1])",
-            11.6,
+            13.1,
         ),
         Kernel(_CB, "_accumulate_gradient", "(int32[:, ::1], float64[:, ::1], float64[::1])", 0.1),
         _EMBED,
@@ -224,14 +222,14 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             "_bounds",
             "(float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], float64,"
             " float64, int64, float64, float64[::1], float64[::1], float64[::1], float64[::1])",
-            6.3,
+            4.0,
         ),
         Kernel(
             "idp.contact.ccd_filter",
             "_refine",
             "(int64[::1], float64[:, ::1], float64[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1], int32[:, ::1],"
             " float64, int64, float64, float64[::1], float64[::1], float64[::1])",
-            4.9,
+            4.0,
         ),
     ),
     # 3D contact (either barrier): the input's crossing edge/triangle pairs (idp.contact.intersections), checked when
