@@ -91,19 +91,25 @@ def run_in_parts(kernel: Callable[..., Any], n: int, *args: Any, grain: int = 1)
     if parts <= 1 or not _in_use.acquire(blocking=False):
         kernel(0, n, *args)
         return
+    error: BaseException | None = None
     try:
         while len(_workers) < parts - 1:
             _workers.append(_Worker())
         bounds = [n * p // parts for p in range(parts + 1)]
-        for p in range(1, parts):
-            _workers[p - 1].start(kernel, (bounds[p], bounds[p + 1], *args))
-        error: BaseException | None = None
+        started = 0
         try:
-            kernel(bounds[0], bounds[1], *args)
-        except BaseException as exc:
-            error = exc
-        for p in range(1, parts):  # every part finishes before anything is raised
-            error = _workers[p - 1].wait() or error
+            for p in range(1, parts):
+                _workers[p - 1].start(kernel, (bounds[p], bounds[p + 1], *args))
+                started = p
+            try:
+                kernel(bounds[0], bounds[1], *args)
+            except BaseException as exc:
+                error = exc
+            for p in range(1, started + 1):  # every part finishes before anything is raised
+                error = _workers[p - 1].wait() or error
+        except BaseException:  # interrupted (Ctrl-C) while handing out or waiting: a worker may still be running
+            _workers.clear()  # its part, so none of these is handed another; later calls start new ones
+            raise
     finally:
         _in_use.release()
     if error is not None:

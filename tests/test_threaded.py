@@ -100,3 +100,37 @@ def test_calls_from_two_threads_at_once() -> None:
     assert len(results) == 40
     for out in results:
         np.testing.assert_array_equal(out, a * a)
+
+
+def test_a_wait_interrupted_by_ctrl_c_leaves_later_calls_right(monkeypatch) -> None:
+    if MAX_THREADS < 2:
+        pytest.skip("needs two threads")
+    n = 2_000_000
+    a = np.linspace(0.0, 1.0, n)
+    out, first = np.empty(n), np.empty(n, np.int64)
+    calls = []
+
+    def interrupted(self):
+        calls.append(1)
+        raise KeyboardInterrupt  # as a signal arriving while the caller waits for the worker's part
+
+    monkeypatch.setattr(threaded._Worker, "wait", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        threaded.run_in_parts(_square_plus_part, n, a, out, first)
+    monkeypatch.undo()
+    assert calls
+    results: list[np.ndarray] = []
+
+    def later_calls() -> None:  # the interrupted call's worker may still be busy: these must not be handed to it
+        for _ in range(3):
+            out = np.full(n, np.nan)
+            threaded.run_in_parts(_square_plus_part, n, a, out, np.empty(n, np.int64))
+            results.append(out)
+
+    caller = threading.Thread(target=later_calls, daemon=True)
+    caller.start()
+    caller.join(timeout=120)
+    assert not caller.is_alive(), "a later call never returned (handed to a worker still busy)"
+    assert len(results) == 3
+    for out in results:
+        np.testing.assert_array_equal(out, a * a)
