@@ -20,7 +20,7 @@ UV_ENV = export UV_SYSTEM_CERTS=1; \
 	[ -z "$${PIP_EXTRA_INDEX_URL:-}" ] || export UV_EXTRA_INDEX_URL="$$PIP_EXTRA_INDEX_URL"; \
 	[ -z "$${PIP_FIND_LINKS:-}" ] || export UV_FIND_LINKS="$$PIP_FIND_LINKS"; \
 	[ -z "$${PIP_CERT:-}" ] || export SSL_CERT_FILE="$$PIP_CERT"
-INSTALL = $(UV_ENV); if [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python $(2) -e '$(1)' pip; \
+INSTALL = $(UV_ENV); if [ -x $(BIN)/uv ] && $(BIN)/uv pip install --quiet --python $(BIN)/python -e '$(1)' pip; \
 	then :; else { $(BIN)/python -m pip --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --upgrade --default-pip; } \
 	&& $(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet -e '$(1)'; fi
 
@@ -41,7 +41,7 @@ $(CORE): pyproject.toml
 	@echo "installing uv into $(VENV) (pip if that fails)"
 	@$(GET_UV)
 	@echo "uv pip install -e '.[cholmod]' (pip if uv fails)"
-	@$(call INSTALL,.[cholmod],)
+	@$(call INSTALL,.[cholmod])
 	@# as installing wheels does, but only for idp and what a run imports (make test's install compiles the rest)
 	$(BIN)/python -m idp._bytecode
 	touch $(CORE)
@@ -52,7 +52,7 @@ ALL_EXTRAS := cholmod,test,lint,usd,remesh,batch
 $(STAMP): $(CORE)
 	@echo "make: installing the test, lint and optional extras into $(VENV) (first time only)"
 	@echo "uv pip install -e '.[$(ALL_EXTRAS)]' (pip if uv fails)"
-	@$(call INSTALL,.[$(ALL_EXTRAS)],)
+	@$(call INSTALL,.[$(ALL_EXTRAS)])
 	@# byte-compiles what the first install left (uv's --compile-bytecode only reaches the packages it installs)
 	$(BIN)/python -m compileall -q -j 0 -x '/tests?/' "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" >/dev/null || true
 	touch $(STAMP)

@@ -55,7 +55,8 @@ def compile_run_imports(half: int | None = None) -> bool:
     True when everything compiled."""
     if half is None:
         child = subprocess.Popen([sys.executable, "-m", "idp._bytecode", "1"], stdin=subprocess.DEVNULL)
-        ok = compile_package() and compile_run_imports(0)
+        ok = compile_package()  # (not short-circuited: a read-only idp still gets its dependencies compiled)
+        ok = compile_run_imports(0) and ok
         return child.wait() == 0 and ok
     previous, sys.dont_write_bytecode = sys.dont_write_bytecode, False
     try:

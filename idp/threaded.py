@@ -3,15 +3,15 @@
 A kernel written as ``kernel(i0, i1, *args)`` (``@njit(nogil=True)``: it releases the GIL) that handles the items
 ``[i0, i1)`` and writes only their own outputs is split here into one contiguous part per numba thread
 (:func:`numba.get_num_threads`, so ``NUMBA_NUM_THREADS`` and :func:`numba.set_num_threads` apply as to ``prange``):
-the calling thread runs the first part and a shared pool the others. Each item is computed by the same code
+the calling thread runs the first part and persistent worker threads the others. Each item is computed by the same code
 whatever the split, so results do not depend on the thread count.
 
 Why not ``prange``: numba compiles a ``prange`` loop's body into a function of its own and links and optimises every
 callee into it once more, then again into the entry point. A serial kernel called from here is compiled once: the
 barrier's Hessian pass took 24.4 s of compile work as a ``prange`` entry point and 12.3 s as its serial chunk
 function (one process, empty cache, the 2-core Intel VM), on the first run of every machine. The hand-off costs
-tens of microseconds a call, against milliseconds of work in the kernels that use it; a range shorter than two
-``grain`` runs on the calling thread alone.
+about 0.1 ms a call there (the operating system waking threads), against milliseconds of work in the kernels that
+use it; a range shorter than two ``grain`` runs on the calling thread alone.
 """
 
 from __future__ import annotations
