@@ -492,17 +492,31 @@ def barrier_gradient(cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float)
 
 
 def barrier_hessian_blocks(
-    cs: CollisionSet, V: np.ndarray, dhat: float, kappa: float, vertex_map: np.ndarray, project: bool = True
+    cs: CollisionSet,
+    V: np.ndarray,
+    dhat: float,
+    kappa: float,
+    vertex_map: np.ndarray,
+    project: bool = True,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-collision Hessian blocks on the optimised vertices only.
 
     ``vertex_map``: (len(V),) int64, the output numbering of each collision-mesh vertex, −1 for a vertex
     that is not optimised (static obstacle, pinned). Returns ``block_verts`` (m, 4) int32 (output ids,
     −1 padded) and ``blocks`` (m, 12, 12): the leading 3n×3n of block c belongs to its n kept vertices
-    (vertex-major); with ``project`` each block is projected to PSD after the restriction."""
+    (vertex-major); with ``project`` each block is projected to PSD after the restriction. ``out``: C-contiguous
+    (m, 4) int32 and (m, 12, 12) float64 arrays to write into (rows of larger arrays: several sets' blocks in one
+    allocation, never concatenated)."""
     m = len(cs)
-    block_verts = np.empty((m, 4), np.int32)
-    blocks = np.empty((m, 12, 12))
+    if out is None:
+        block_verts, blocks = np.empty((m, 4), np.int32), np.empty((m, 12, 12))
+    else:
+        block_verts, blocks = out
+        if block_verts.shape != (m, 4) or blocks.shape != (m, 12, 12):
+            raise ValueError(f"out arrays of shapes {block_verts.shape}, {blocks.shape} for {m} collisions")
+        if not (block_verts.flags.c_contiguous and blocks.flags.c_contiguous):
+            raise ValueError("out arrays must be C-contiguous")
     if m:
         run_in_parts(
             _hessian_chunk,

@@ -378,23 +378,45 @@ class ContactModel:
             ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project
         )
 
-    def lookahead_hessian_blocks(
+    def hessian_blocks_with_lookahead(
         self, ev: ContactEvaluation, vertex_map: np.ndarray, reach: float, stiffness: float, candidates
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Compiled barrier only (None otherwise): PSD Hessian blocks of the barrier with activation distance
-        ``reach``·d̂ and stiffness ``stiffness``·κ over the ``candidates`` (fv, ee) within that distance at
-        ``ev``'s positions, restricted like :meth:`hessian_blocks`. Added to a Newton matrix they make a majorant
-        that sees pairs just outside d̂ (:class:`idp.solver.newton.StepSolver`, ``contact_lookahead``, which passes
-        the sweep of the move CCD last cut short: the pairs the direction ran into); never part of the energy."""
-        if not self.compiled or self.kappa == 0.0 or candidates is None:
-            return None
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """Compiled barrier only: :meth:`hessian_blocks` (projected) followed by the PSD blocks of a look-ahead
+        barrier with activation distance ``reach``·d̂ and stiffness ``stiffness``·κ over the ``candidates``
+        (fv, ee) within that distance at ``ev``'s positions, restricted the same way; returns (block_verts,
+        blocks, number of look-ahead blocks). Added to a Newton matrix the look-ahead blocks make a majorant that
+        sees pairs just outside d̂ (:class:`idp.solver.newton.StepSolver`, ``contact_lookahead``, which passes the
+        sweep of the move CCD last cut short: the pairs the direction ran into); never part of the energy. Both
+        sets are written into one allocation (at bunnyx30_13K each holds up to ≈ 35,000 blocks, 40 MB:
+        concatenating them raised the run's peak memory by ≈ 80 MB)."""
+        if not self.compiled:
+            raise RuntimeError("look-ahead blocks need the compiled barrier")
         vs = ev.surface_positions
-        dhat2 = reach * self.dhat
-        fv, ee = candidates
-        cs = self._cb.build_collision_set(vs, self._edges, self._faces, fv, ee, dhat2, self._edge_rest_len2)
-        if not len(cs):
-            return None
-        return self._cb.barrier_hessian_blocks(cs, vs, dhat2, stiffness * self.kappa, vertex_map, True)
+        ahead = None
+        if self.kappa != 0.0 and candidates is not None:
+            fv, ee = candidates
+            ahead = self._cb.build_collision_set(
+                vs, self._edges, self._faces, fv, ee, reach * self.dhat, self._edge_rest_len2
+            )
+        m_ahead = len(ahead) if ahead is not None else 0
+        m = len(ev.collisions)
+        block_verts = np.empty((m + m_ahead, 4), np.int32)
+        blocks = np.empty((m + m_ahead, 12, 12))
+        cb = self._cb
+        cb.barrier_hessian_blocks(
+            ev.collisions, vs, self.dhat, self.kappa, vertex_map, True, out=(block_verts[:m], blocks[:m])
+        )
+        if m_ahead:
+            cb.barrier_hessian_blocks(
+                ahead,
+                vs,
+                reach * self.dhat,
+                stiffness * self.kappa,
+                vertex_map,
+                True,
+                out=(block_verts[m:], blocks[m:]),
+            )
+        return block_verts, blocks, m_ahead
 
     def min_distance(self, ev: ContactEvaluation) -> float:
         """Smallest distance among active pairs (not squared); ``inf`` when no pair is within d̂."""

@@ -165,7 +165,7 @@ class CholmodSolver(LinearSolver):
     ) -> None:
         """Ordering + symbolic factorisation of the lower-triangle pattern with columns (aptr, arow); ``S``: that
         pattern's matrix (holding ``vals``) when the caller has it, else it is built here."""
-        self._F = None
+        self._F, self._S = None, None  # the last pattern's factor and matrix: freed before this one's are built
         self._pattern.clear()
         t0 = time.perf_counter()
         if self.reuse_ordering and self._perm is not None and self._perm.shape[0] == n:
@@ -245,6 +245,9 @@ class CholmodSolver(LinearSolver):
                 self.stats["symbolic_reuses"] += 1
                 self.stats["subset_reuses"] = self.stats.get("subset_reuses", 0) + 1
                 return
+            # a new analysis follows: free the old factor before the union is built (bunnyx30_13K with the contact
+            # look-ahead: the run's peak memory was reached building the union with the last factor still alive)
+            self._F = None
             if arow.size + n_new <= self.union_growth * lrow.size:
                 del found
                 uptr, urow, mask, new_rows, new_cols = union_columns(lptr, lrow, aptr, arow, n_new)
@@ -254,6 +257,7 @@ class CholmodSolver(LinearSolver):
                 # the analysed matrix plus explicit zeros at the new entries: cvxopt merges the sorted columns, a
                 # third of the time of building the union from triplets (5 against 14 ms at the Fig. 12 cat)
                 S = self._S + cvxopt.spmatrix(0.0, cvxopt.matrix(new_rows), cvxopt.matrix(new_cols), (n, n))
+                self._S = None  # the old matrix: not alive during the ordering and the symbolic analysis
                 if len(S) == urow.size:
                     S.V = cvxopt.matrix(full)
                 else:  # (cvxopt dropped or merged an entry: never seen) the union from its columns

@@ -256,15 +256,17 @@ class StepSolver:
         if not active:
             return g, s.contact_pattern.assemble(data)
         if s.contact.compiled:
-            block_verts, blocks = s.contact.hessian_blocks(ev, s.collision_vertex_to_free)
             if self._lookahead:
-                reach = self.settings.contact_lookahead
-                extra = s.contact.lookahead_hessian_blocks(
-                    ev, s.collision_vertex_to_free, reach, LOOKAHEAD_STIFFNESS, self._cut_sweep
+                block_verts, blocks, n_ahead = s.contact.hessian_blocks_with_lookahead(
+                    ev,
+                    s.collision_vertex_to_free,
+                    self.settings.contact_lookahead,
+                    LOOKAHEAD_STIFFNESS,
+                    self._cut_sweep,
                 )
-                if extra is not None and len(extra[0]):
-                    block_verts, blocks = np.concatenate([block_verts, extra[0]]), np.concatenate([blocks, extra[1]])
-                    self._lookahead_used = True
+                self._lookahead_used = n_ahead > 0
+            else:
+                block_verts, blocks = s.contact.hessian_blocks(ev, s.collision_vertex_to_free)
             return g, s.contact_pattern.assemble_blocks(data, block_verts, blocks)
         return g, s.contact_pattern.assemble(data, s.contact.hessian(ev), s.collision_dof_to_free)
 
