@@ -24,7 +24,7 @@ from idp.mesh.surface import boundary_edges, boundary_faces, enclosed_volume, su
 from idp.mesh.types import SurfaceMesh, VolumeMesh
 from idp.output.parts import Part
 from idp.scene.build_handles import motion_from_spec, selection_from_spec
-from idp.solver.newton import NewtonSettings, line_search_extrapolation
+from idp.solver.newton import NewtonSettings, contact_lookahead_reach, line_search_extrapolation
 from idp.stepper.dirichlet import DirichletTargets
 from idp.stepper.distortion import DistortionMonitor
 from idp.stepper.handles import Handle, HandleSet, check_static_overlaps
@@ -551,7 +551,9 @@ def build_scene(
         check_every_iterate=s.check_every_iterate if check_every_iterate is None else check_every_iterate,
         max_seconds=s.max_step_seconds,
         max_memory=s.max_memory_bytes,
-        contact_lookahead=s.contact_lookahead,
+        contact_lookahead=contact_lookahead_reach(
+            s.contact_lookahead, system.contact is not None and system.contact.compiled, bool(shells)
+        ),
     )
     o, t = scene.output, scene.time
     if repair is not None:

@@ -107,8 +107,9 @@ class SolverConfig(_Model):
     # "auto": 2p for p-norm energies with p > 1 (Newton falls short on a power law), else 1 (off)
     line_search_extrapolation: Literal["auto"] | float = "auto"
     # search matrices that also see contact pairs within this multiple of d̂ once CCD cuts a step short (0: off;
-    # docs/benchmarks.md, "Contact look-ahead"); the energy, line search, CCD and stopping rule are unchanged
-    contact_lookahead: Annotated[float, Strict(), Field(ge=0)] = 0.0
+    # docs/benchmarks.md, "Contact look-ahead"); the energy, line search, CCD and stopping rule are unchanged.
+    # "auto": 2 with the compiled barrier when no shell deforms, else 0 (idp.solver.newton.contact_lookahead_reach)
+    contact_lookahead: Literal["auto"] | float = "auto"
     # guards (docs/scene-reference.md, "Running on shared machines"): a step's wall-clock limit in seconds, and the
     # memory a step may use ("4G", "512M" with powers of 1024, or a number of bytes) on top of the memory available
     max_step_seconds: PosFloat | None = None
@@ -122,10 +123,9 @@ class SolverConfig(_Model):
     @field_validator("contact_lookahead", mode="before")
     @classmethod
     def _lookahead(cls, v: Any) -> Any:
-        if isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
+        v = _auto_or_number(v, 0.0, inclusive=True, note=" (0: off)")
         if isinstance(v, float) and 0.0 < v <= 1.0:
-            raise ValueError("contact_lookahead must be 0 (off) or a multiple of dhat above 1, e.g. 3")
+            raise ValueError('contact_lookahead must be "auto", 0 (off) or a multiple of dhat above 1, e.g. 2')
         return v
 
     @field_validator("max_memory", mode="before")

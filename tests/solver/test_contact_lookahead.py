@@ -5,12 +5,18 @@ matrix's decrement."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+from contact.test_compiled_barrier import stacked
 
 from idp.api import simulate
 from idp.bench.suite import _ball_in_box
+from idp.contact import compiled_barrier as cb
+from idp.contact.model import ContactModel
 from idp.errors import SceneError
+from idp.scene.build import build_scene
 from idp.scene.load import scene_from_dict
+from idp.solver.newton import contact_lookahead_reach
 
 
 def _pressed_ball(lookahead: float) -> dict:
@@ -89,3 +95,48 @@ def test_lookahead_only_follows_a_cut_step(runs):
     for r in runs[3.0].step_records:
         cut = sum(1 for a, c in zip(r["alphas"][:-1], r["ccd_alphas"][:-1], strict=True) if a > 0 and c < 0.5)
         assert r["lookahead_iterations"] <= cut
+
+
+@pytest.mark.parametrize(
+    ("setting", "compiled", "shells", "reach"),
+    [("auto", True, False, 2.0), ("auto", True, True, 0.0), ("auto", False, False, 0.0), (3.0, False, True, 3.0)],
+)
+def test_auto_reach(setting, compiled, shells, reach):
+    # "auto": on (reach 2) for volumes with the compiled barrier, off where a shell deforms or the barrier is
+    # ipctk's; a number is taken as given
+    assert contact_lookahead_reach(setting, compiled, shells) == reach
+
+
+def test_auto_is_the_default_and_resolves_per_scene():
+    d = _pressed_ball(0.0)
+    del d["solver"]["contact_lookahead"]
+    scene = scene_from_dict(d)
+    assert scene.solver.contact_lookahead == "auto"
+    assert build_scene(scene).newton.contact_lookahead == 2.0
+    d["contact"]["barrier"] = "ipctk"
+    assert build_scene(scene_from_dict(d)).newton.contact_lookahead == 0.0
+
+
+def test_blocks_with_lookahead_are_the_two_sets_in_one_allocation():
+    # the active set's blocks, then the look-ahead set's (activation reach·d̂, stiffness share·κ) — computed into
+    # one array instead of concatenated; the same kernel on the same inputs, so equal bit for bit
+    x, surf, nd = stacked(0.02, 0.0, 4)  # two stacked boxes 0.02 apart, the upper one moving down by 0.015
+    cm = ContactModel(x, surf, nd, dhat=0.025, kappa=3.0)
+    y = x.copy()
+    y[x[:, 2] > 1.01, 2] -= 0.015
+    ev = cm.evaluate(x)
+    vs = cm.surface_positions(x)
+    vmap = np.arange(vs.shape[0], dtype=np.int64)
+    cand = cm.sweep_candidates(x, y)  # as the Newton loop passes them: the sweep of the move CCD cut
+    bv, blocks, n_ahead = cm.hessian_blocks_with_lookahead(ev, vmap, 3.0, 0.01, cand)
+    a_bv, a_blocks = cm.hessian_blocks(ev, vmap)
+    m = a_bv.shape[0]
+    assert m > 0 and n_ahead >= m and bv.shape[0] == m + n_ahead  # the wider set holds the active pairs
+    ahead = cb.build_collision_set(vs, cm._edges, cm._faces, cand[0], cand[1], 3.0 * cm.dhat, cm._edge_rest_len2)
+    l_bv, l_blocks = cb.barrier_hessian_blocks(ahead, vs, 3.0 * cm.dhat, 0.01 * cm.kappa, vmap, True)
+    # only each block's leading 3n × 3n belongs to its n vertices (the rest is never read): compare those entries
+    for got, want in [((bv[:m], blocks[:m]), (a_bv, a_blocks)), ((bv[m:], blocks[m:]), (l_bv, l_blocks))]:
+        for g, w in zip(cb.blocks_to_coo(*got), cb.blocks_to_coo(*want), strict=True):
+            np.testing.assert_array_equal(g, w)
+    # κ = 0 or no candidates: the active blocks alone
+    assert cm.hessian_blocks_with_lookahead(ev, vmap, 3.0, 0.01, None)[2] == 0
