@@ -90,7 +90,7 @@ def contact_lookahead_reach(setting: str | float, compiled_barrier: bool, deform
 
     "auto" gives 2 with the compiled barrier (the only one that builds look-ahead blocks) when every deforming
     object is a volume or a 2D mesh, 0 when a shell deforms. Measured (docs/benchmarks.md, "Contact look-ahead"):
-    with a reach of 2 the bunny-in-box scenes take 18–22 % fewer Newton iterations and the demo 6 % fewer; shells
+    with a reach of 2 the bunny-in-box scenes take 18–26 % fewer Newton iterations and the demo 6 % fewer; shells
     pressing into themselves keep many pairs within 2 d̂ that slide rather than close, and the extra couplings cost
     the Fig. 12 cat more than the iterations they save (12.7 against 11.7 s)."""
     if setting != "auto":
