@@ -90,7 +90,7 @@ def main() -> None:
     a.wrap(newton.StepSolver, "_direction", "linear solve: other")
     a.wrap(newton.StepSolver, "_exact_direction", "exact direction (CG)")
     a.wrap(cholmod_backend.CholmodSolver, "_load_changed_pattern", "linear: new pattern's index maps")
-    a.wrap(cholmod_backend.CholmodSolver, "_analyse_lower", "linear: ordering + symbolic")
+    a.wrap(cholmod_backend.CholmodSolver, "_analyse", "linear: ordering + symbolic")
     a.wrap(cholmod_backend.cholmod, "numeric", "linear: CHOLMOD numeric")
     a.wrap(cholmod_backend.cholmod, "solve", "linear: CHOLMOD solve")
     a.wrap(newton.StepSolver, "_filtered_step", "line search")

@@ -59,7 +59,7 @@ class Kernel:
 
 _E = "idp.energies._elastic_kernels"
 _CB = "idp.contact.compiled_barrier"
-_LP = "idp.solver.lower_pattern"
+_LP = "idp.solver.triangle_pattern"
 _IX = "idp.contact.intersections"
 
 #: the elastic values copied onto the contact pattern once it has grown beyond the elastic one (a run whose contacts
@@ -90,10 +90,10 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         # the input's surface checks (components of boundary loops, face fans, surface parts)
         Kernel("idp.mesh.components", "_component_labels", "(int64, int64[::1], int64[::1], int64[::1])", 0.3),
     ),
-    # the CHOLMOD backend's pattern changes (idp.solver.lower_pattern): every run factors a first pattern; the merge
+    # the CHOLMOD backend's pattern changes (idp.solver.triangle_pattern): every run factors a first pattern; the merge
     # with the analysed pattern from the second on, the ordering's graphs with METIS, the memory count's pattern
     "cholmod": (
-        Kernel(_LP, "lower_columns", "(int64[::1], Array(int32, 1, 'C', readonly=True))", 0.2),
+        Kernel(_LP, "upper_columns", "(int64[::1], Array(int32, 1, 'C', readonly=True))", 0.2),
         Kernel(
             _LP,
             "locate_entries",
@@ -102,8 +102,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             alternative=True,
         ),
         Kernel(_LP, "union_columns", "(int64[::1], int32[::1], int64[::1], int32[::1], int64)", 0.4, alternative=True),
-        Kernel(_LP, "_symmetric_from_lower", "(int64[::1], int32[::1])", 0.3, alternative=True),
-        Kernel(_LP, "vertex_graph_from_lower", "(int64[::1], int32[::1], int64)", 0.3, alternative=True),
+        Kernel(_LP, "_symmetric_from_triangle", "(int64[::1], int32[::1])", 0.3, alternative=True),
+        Kernel(_LP, "vertex_graph_from_triangle", "(int64[::1], int32[::1], int64)", 0.3, alternative=True),
     ),
     # deformable solids (tetrahedra in 3D, triangles in 2D): elasticity and the inversion filter
     "solid": (

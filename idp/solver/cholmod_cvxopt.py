@@ -11,15 +11,22 @@ Per sparsity pattern (the first call and whenever ``indptr``/``indices`` change)
    run AMD: +0.15 s at 59K DOF for nothing): METIS nested dissection (pymetis) or AMD
    (``cvxopt.amd``), whichever predicts less factorisation work (:func:`choose_ordering`). Without
    pymetis CHOLMOD's AMD is used.
-2. symbolic: the lower triangle's columns merged with the analysed ones (compiled merge walks,
-   :mod:`idp.solver.lower_pattern`: at the Fig. 12 cat 35 → 6 ms per changed pattern, and the
+2. symbolic: the upper triangle's columns merged with the analysed ones (compiled merge walks,
+   :mod:`idp.solver.triangle_pattern`: at the Fig. 12 cat 35 → 6 ms per changed pattern, and the
    vertex graph 19 → 3 ms), one ``cvxopt.spmatrix`` built from triplets (for a pattern grown
    from the analysed one: that matrix plus explicit zeros at the new entries),
-   ``cholmod.symbolic(S, p, uplo='L')``.
+   ``cholmod.symbolic(S, p, uplo='U')``.
 
-Per factorisation: the lower-triangle values are written into the existing
+Per factorisation: the upper-triangle values are written into the existing
 spmatrix (``S.V = ...``, 3 ms at 59K DOF instead of 70 ms for a new spmatrix)
 and ``cholmod.numeric(S, F)`` refactors in place.
+
+Why the upper triangle: ``cholmod.numeric`` hands CHOLMOD a packed copy of the stored triangle, and CHOLMOD's
+supernodal factorisation wants tril(PAPᵀ): from an upper triangle that is one permuted transpose, from a lower one
+two (triu(PAPᵀ), then its transpose), all three copies alive at once. At bunnyx30_13K's late Newton matrices
+(1.25 M stored entries, 57K DOFs) the transient growth of a factorisation is 57.1 MB with the lower triangle and
+47.9 MB with the upper (the rest is the largest update block), the same factor (RSS around ``cholmod.numeric``
+after resetting VmHWM, the run's peak being one of these factorisations).
 
 The ordering is recomputed on every pattern change by default (``reuse_ordering=False``):
 on a 59K-DOF tet grid (bench/bench_linear.py), keeping the old ordering after adding
@@ -37,7 +44,8 @@ comparison.
 Memory (:meth:`CholmodSolver.factor_bytes`): a supernodal factor stores every (relaxed) supernode as a dense
 rows × columns block of float64. From the fundamental supernodes of the symbolic count the model is
 8.4 B per block entry (CHOLMOD's relaxed amalgamation added 2–4 % zeros on the grids below) + 64 B per DOF, and
-for one factorisation a workspace of the largest update block (8 B per entry) plus CHOLMOD's permuted copy of A.
+for one factorisation a workspace of the largest update block (8 B per entry) plus cvxopt's packed copy of the stored
+triangle and CHOLMOD's permuted one (16 B per entry each: long indices).
 Measured (bench/bench_linear.py 3D grid matrices, METIS ordering, RSS growth of ``cholmod.numeric`` read from
 /proc/self/status, peak by VmHWM after resetting it): 12K DOF 48 MB (model 51), 32K DOF 197 MB (model 196),
 66K DOF 489 MB (model 511). Without pymetis CHOLMOD orders inside ``cholmod.symbolic`` (AMD), the ordering is not
@@ -68,14 +76,14 @@ from idp.solver.linear import (
     metis_vertex_ordering,
     nested_dissection_ordering,
 )
-from idp.solver.lower_pattern import (
-    locate_entries,
-    lower_columns,
-    symmetric_from_lower,
-    union_columns,
-    vertex_graph_from_lower,
-)
 from idp.solver.symbolic import SymbolicCounts, cholesky_flops
+from idp.solver.triangle_pattern import (
+    locate_entries,
+    symmetric_from_triangle,
+    union_columns,
+    upper_columns,
+    vertex_graph_from_triangle,
+)
 
 __all__ = ["CholmodSolver", "choose_ordering"]
 
@@ -137,14 +145,14 @@ class CholmodSolver(LinearSolver):
         self.reuse_ordering = bool(reuse_ordering)
         self._pattern = PatternCache()
         # bool masks, not index arrays (1 B instead of 8 B per entry: −17 MB at bunnyx30_13K): which CSR entries
-        # form tril(A) (their CSR order is the CSC order of tril(A)), and which entries of the analysed pattern
+        # form triu(A) (their CSR order is the CSC order of triu(A)), and which entries of the analysed pattern
         # they fill (None: all of them; the analysed pattern is a sorted superset, so the order is kept)
         self._sel: np.ndarray | None = None
         self._pos: np.ndarray | None = None
         self._S: cvxopt.spmatrix | None = None
         self._F: object | None = None
         self._perm: np.ndarray | None = None
-        # the analysed lower triangle's columns: pointers (int64) and sorted rows (int32)
+        # the analysed upper triangle's columns: pointers (int64) and sorted rows (int32)
         self._aptr: np.ndarray | None = None
         self._arow: np.ndarray | None = None
         self._factored = False
@@ -160,10 +168,10 @@ class CholmodSolver(LinearSolver):
         return other
 
     # ------------------------------------------------------------------ pattern work
-    def _analyse_lower(
+    def _analyse(
         self, aptr: np.ndarray, arow: np.ndarray, vals: np.ndarray, n: int, S: cvxopt.spmatrix | None = None
     ) -> None:
-        """Ordering + symbolic factorisation of the lower-triangle pattern with columns (aptr, arow); ``S``: that
+        """Ordering + symbolic factorisation of the upper-triangle pattern with columns (aptr, arow); ``S``: that
         pattern's matrix (holding ``vals``) when the caller has it, else it is built here."""
         self._F, self._S = None, None  # the last pattern's factor and matrix: freed before this one's are built
         self._pattern.clear()
@@ -176,7 +184,7 @@ class CholmodSolver(LinearSolver):
             perm = None
         t1 = time.perf_counter()
         if self.memory_guard is not None:  # before CHOLMOD allocates anything for this pattern
-            full = symmetric_from_lower(aptr, arow) if perm is not None else (None, None)
+            full = symmetric_from_triangle(aptr, arow) if perm is not None else (None, None)
             self._check_memory(full[0], full[1], n, perm)
             del full
         # threaded BLAS only for factors with large dense blocks (see idp.solver.cholmod_blas.worth_threads)
@@ -189,9 +197,9 @@ class CholmodSolver(LinearSolver):
         opts = {"supernodal": 2, "postorder": True, "nmethods": 1 if perm is not None else 0}
         with _options(**opts):
             if perm is not None:
-                F = cholmod.symbolic(S, p=cvxopt.matrix(perm), uplo="L")
+                F = cholmod.symbolic(S, p=cvxopt.matrix(perm), uplo="U")
             else:
-                F = cholmod.symbolic(S, uplo="L")
+                F = cholmod.symbolic(S, uplo="U")
         t2 = time.perf_counter()
         self._S, self._F, self._perm, self._aptr, self._arow = S, F, perm, aptr, arow
         self.stats["ordering"] += t1 - t0
@@ -199,14 +207,14 @@ class CholmodSolver(LinearSolver):
         self.stats["symbolic_analyses"] += 1
 
     def _ordering(self, aptr: np.ndarray, arow: np.ndarray, n: int) -> np.ndarray:
-        """Fill-reducing DOF ordering of the symmetric pattern with lower-triangle columns (aptr, arow): METIS or
+        """Fill-reducing DOF ordering of the symmetric pattern with upper-triangle columns (aptr, arow): METIS or
         AMD of its vertex graph, compared from time to time (:func:`choose_ordering`; see the module docstring),
         the last choice alone in between."""
         d = self.dofs_per_node
         if n == 0 or n % d:
-            indptr, indices = symmetric_from_lower(aptr, arow)
+            indptr, indices = symmetric_from_triangle(aptr, arow)
             return nested_dissection_ordering(indptr, indices, n, d)
-        xadj, adjncy = vertex_graph_from_lower(aptr, arow, int(d))
+        xadj, adjncy = vertex_graph_from_triangle(aptr, arow, int(d))
         if self._ordering_kind is None or self._since_ordering_check >= self._ordering_interval:
             previous = self._ordering_kind
             self._ordering_kind, vperm = choose_ordering(xadj, adjncy)
@@ -226,21 +234,21 @@ class CholmodSolver(LinearSolver):
         """A pattern other than the last one: reuse the symbolic factorisation when it is a subset of the
         analysed pattern (CHOLMOD then factors with explicit zeros), else analyse the union of the two
         patterns (so couplings that come and go stop triggering analyses), or the new one alone when the
-        union would grow too large. (Merge walks over sorted columns: :mod:`idp.solver.lower_pattern`.)"""
+        union would grow too large. (Merge walks over sorted columns: :mod:`idp.solver.triangle_pattern`.)"""
         rows = indices.view() if indices.dtype == np.int32 else indices.astype(np.int32)
         rows.flags.writeable = False  # read-only like the contact pattern's own: one compiled specialisation
-        lptr, sel, diagonal = lower_columns(np.array(indptr, dtype=np.int64), rows)
+        cptr, sel, diagonal = upper_columns(np.array(indptr, dtype=np.int64), rows)
         if n > 0 and not diagonal:
             raise NotPositiveDefinite("matrix has a structurally missing diagonal entry")
-        lrow, vals = rows[sel], data[sel]
+        crow, vals = rows[sel], data[sel]
         del rows
         self._sel = sel
         aptr, arow = self._aptr, self._arow
         if aptr is not None and arow is not None and self._S is not None and self._S.size[0] == n:
             found = np.zeros(arow.size, dtype=bool)
-            n_new = locate_entries(lptr, lrow, aptr, arow, found)
+            n_new = locate_entries(cptr, crow, aptr, arow, found)
             if n_new == 0:
-                self._pos = None if lrow.size == arow.size else found
+                self._pos = None if crow.size == arow.size else found
                 self._set_values(vals)
                 self.stats["symbolic_reuses"] += 1
                 self.stats["subset_reuses"] = self.stats.get("subset_reuses", 0) + 1
@@ -248,27 +256,27 @@ class CholmodSolver(LinearSolver):
             # a new analysis follows: free the old factor before the union is built (bunnyx30_13K with the contact
             # look-ahead: the run's peak memory was reached building the union with the last factor still alive)
             self._F = None
-            if arow.size + n_new <= self.union_growth * lrow.size:
+            if arow.size + n_new <= self.union_growth * crow.size:
                 del found
-                uptr, urow, mask, new_rows, new_cols = union_columns(lptr, lrow, aptr, arow, n_new)
-                self._pos = None if urow.size == lrow.size else mask
+                union_ptr, union_row, mask, new_rows, new_cols = union_columns(cptr, crow, aptr, arow, n_new)
+                self._pos = None if union_row.size == crow.size else mask
                 del mask
-                full = self._spread(vals, urow.size)
+                full = self._spread(vals, union_row.size)
                 # the analysed matrix plus explicit zeros at the new entries: cvxopt merges the sorted columns, a
                 # third of the time of building the union from triplets (5 against 14 ms at the Fig. 12 cat)
                 S = self._S + cvxopt.spmatrix(0.0, cvxopt.matrix(new_rows), cvxopt.matrix(new_cols), (n, n))
                 self._S = None  # the old matrix: not alive during the ordering and the symbolic analysis
-                if len(S) == urow.size:
+                if len(S) == union_row.size:
                     S.V = cvxopt.matrix(full)
                 else:  # (cvxopt dropped or merged an entry: never seen) the union from its columns
                     S = None
-                self._analyse_lower(uptr, urow, full, n, S)
+                self._analyse(union_ptr, union_row, full, n, S)
                 return
         self._pos = None
-        self._analyse_lower(lptr, lrow, vals, n)
+        self._analyse(cptr, crow, vals, n)
 
     def _spread(self, vals: np.ndarray, size: int) -> np.ndarray:
-        """The lower-triangle values on the analysed pattern of ``size`` entries (zeros where A has none)."""
+        """The upper-triangle values on the analysed pattern of ``size`` entries (zeros where A has none)."""
         if self._pos is None:
             return vals
         full = np.zeros(size)
@@ -276,16 +284,17 @@ class CholmodSolver(LinearSolver):
         return full
 
     def _set_values(self, vals: np.ndarray) -> None:
-        """Copy the lower-triangle values into the analysed (possibly larger) pattern."""
+        """Copy the upper-triangle values into the analysed (possibly larger) pattern."""
         # only called once a pattern has been analysed, which sets all three
         assert self._arow is not None and self._S is not None
         self._S.V = cvxopt.matrix(self._spread(vals, self._arow.size))
 
     def factor_bytes(self, counts: SymbolicCounts) -> tuple[int, int]:
         """Relaxed supernodes (8.4 B per fundamental-supernode block entry, + 64 B per DOF); workspace: the largest
-        update block and the permuted copy of A (see the module docstring for the measurements)."""
+        update block and two copies of the stored triangle, 16 B per entry each (cvxopt's packed one and CHOLMOD's
+        permuted one; about half of ``nnz_matrix`` each: see the module docstring for the measurements)."""
         factor = int(8.4 * counts.supernodal_values) + 64 * counts.n
-        return factor, 8 * counts.max_update + 8 * counts.nnz_matrix + 64 * counts.n
+        return factor, 8 * counts.max_update + 16 * counts.nnz_matrix + 64 * counts.n
 
     # ------------------------------------------------------------------ interface
     def factorize(self, A: sp.spmatrix) -> None:

@@ -1,4 +1,4 @@
-"""The compiled lower-triangle pattern walks against the same sets built by scipy and numpy."""
+"""The compiled triangle pattern walks against the same sets built by scipy and numpy."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import pytest
 import scipy.sparse as sp
 
 from idp.solver.linear import vertex_graph
-from idp.solver.lower_pattern import (
+from idp.solver.triangle_pattern import (
     locate_entries,
-    lower_columns,
-    symmetric_from_lower,
+    symmetric_from_triangle,
     union_columns,
-    vertex_graph_from_lower,
+    upper_columns,
+    vertex_graph_from_triangle,
 )
 
 
@@ -28,9 +28,16 @@ def _symmetric_pattern(n: int, density: float, seed: int, diagonal: bool = True)
     return A
 
 
-def _lower(A: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
-    lptr, sel, _ = lower_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))
-    return lptr, A.indices.astype(np.int32)[sel]
+def _upper(A: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+    uptr, sel, _ = upper_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))
+    return uptr, A.indices.astype(np.int32)[sel]
+
+
+def _triangle(A: sp.csr_matrix, which: str) -> tuple[np.ndarray, np.ndarray]:
+    """The columns of one triangle of A, built by scipy."""
+    T = (sp.tril(A) if which == "lower" else sp.triu(A)).tocsc()
+    T.sort_indices()
+    return T.indptr.astype(np.int64), T.indices.astype(np.int32)
 
 
 def _keys(ptr: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -39,25 +46,28 @@ def _keys(ptr: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_lower_columns_are_the_lower_triangle(seed: int) -> None:
+def test_upper_columns_are_the_upper_triangle(seed: int) -> None:
     A = _symmetric_pattern(60, 0.08, seed)
-    lptr, sel, diagonal = lower_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))
+    uptr, sel, diagonal = upper_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))
     assert diagonal
-    L = sp.tril(A).tocsc()
-    L.sort_indices()
-    np.testing.assert_array_equal(lptr, L.indptr)
-    np.testing.assert_array_equal(A.indices[sel], L.indices)
-    assert sel.sum() == L.nnz
+    U = sp.triu(A).tocsc()
+    U.sort_indices()
+    np.testing.assert_array_equal(uptr, U.indptr)
+    np.testing.assert_array_equal(A.indices[sel], U.indices)
+    assert sel.sum() == U.nnz
+    values = np.arange(A.nnz, dtype=float)  # the selected CSR values are the upper triangle's in CSC order
+    Av = sp.csr_matrix((values, A.indices, A.indptr), shape=A.shape)
+    np.testing.assert_array_equal(values[sel], sp.tril(Av).tocsr().data)
 
 
-def test_lower_columns_notice_a_missing_diagonal_entry() -> None:
+def test_upper_columns_notice_a_missing_diagonal_entry() -> None:
     A = _symmetric_pattern(30, 0.1, 7).tolil()
     A[12, 12] = 0
     A = A.tocsr()
     A.eliminate_zeros()
-    assert not lower_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))[2]
-    empty_row = sp.csr_matrix((3, 3))  # a row without any entry at or right of its diagonal
-    assert not lower_columns(empty_row.indptr.astype(np.int64), empty_row.indices.astype(np.int32))[2]
+    assert not upper_columns(A.indptr.astype(np.int64), A.indices.astype(np.int32))[2]
+    empty_row = sp.csr_matrix((3, 3))  # a row without any entry at or left of its diagonal
+    assert not upper_columns(empty_row.indptr.astype(np.int64), empty_row.indices.astype(np.int32))[2]
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -65,8 +75,8 @@ def test_merge_walks_match_set_operations(seed: int) -> None:
     n = 80
     old = _symmetric_pattern(n, 0.05, seed)
     new = _symmetric_pattern(n, 0.05, 100 + seed)
-    aptr, arow = _lower(old)
-    lptr, lrow = _lower(new)
+    aptr, arow = _upper(old)
+    lptr, lrow = _upper(new)
     ka, kl = _keys(aptr, arow), _keys(lptr, lrow)
     found = np.zeros(arow.size, dtype=bool)
     n_new = locate_entries(lptr, lrow, aptr, arow, found)
@@ -88,19 +98,21 @@ def test_merge_walks_match_set_operations(seed: int) -> None:
     assert found.all()
 
 
+@pytest.mark.parametrize("which", ["lower", "upper"])
 @pytest.mark.parametrize("seed", range(3))
-def test_symmetric_pattern_from_the_lower_triangle(seed: int) -> None:
+def test_symmetric_pattern_from_either_triangle(seed: int, which: str) -> None:
     A = _symmetric_pattern(50, 0.1, seed)
-    indptr, indices = symmetric_from_lower(*_lower(A))
+    indptr, indices = symmetric_from_triangle(*_triangle(A, which))
     np.testing.assert_array_equal(indptr, A.indptr)
     np.testing.assert_array_equal(indices, A.indices)
     assert indices.dtype == np.int32 and indptr.dtype == np.int32
 
 
+@pytest.mark.parametrize("which", ["lower", "upper"])
 @pytest.mark.parametrize("d", [1, 2, 3])
-def test_vertex_graph_from_the_lower_triangle(d: int) -> None:
+def test_vertex_graph_from_either_triangle(d: int, which: str) -> None:
     A = _symmetric_pattern(20 * d, 0.06, d)
-    xadj, adjncy = vertex_graph_from_lower(*_lower(A), d)
+    xadj, adjncy = vertex_graph_from_triangle(*_triangle(A, which), d)
     ref_xadj, ref_adjncy = vertex_graph(A.indptr, A.indices, A.shape[0], d)
     np.testing.assert_array_equal(xadj, ref_xadj)
     np.testing.assert_array_equal(adjncy, ref_adjncy)

@@ -1,16 +1,18 @@
-"""The lower triangle of a symmetric sparsity pattern as compressed columns, merged with an analysed one.
+"""One triangle of a symmetric sparsity pattern as compressed columns, merged with an analysed one.
 
 A Cholesky backend that keeps its symbolic factorisation across Newton iterations needs, whenever the matrix's
-pattern changes: the new lower triangle, whether it lies inside the analysed pattern (then the old analysis
-serves, with explicit zeros), else the union of the two, where each entry of the matrix sits in the pattern it
-factorises, and the symmetric and vertex-graph forms of that pattern for the fill-reducing ordering and the
-memory count. Every step here is one compiled pass over sorted columns: merge walks instead of sorted int64
-keys, binary searches and scipy's triplet conversions (at the Fig. 12 cat's 22K DOFs: 35 → 6 ms per changed
-pattern, see :mod:`idp.solver.cholmod_cvxopt`).
+pattern changes: the new triangle, whether it lies inside the analysed pattern (then the old analysis serves, with
+explicit zeros), else the union of the two, where each entry of the matrix sits in the pattern it factorises, and
+the symmetric and vertex-graph forms of that pattern for the fill-reducing ordering and the memory count. Every
+step here is one compiled pass over sorted columns: merge walks instead of sorted int64 keys, binary searches and
+scipy's triplet conversions (at the Fig. 12 cat's 22K DOFs: 35 → 6 ms per changed pattern, see
+:mod:`idp.solver.cholmod_cvxopt`).
 
-Conventions: a symmetric CSR with sorted rows (scipy's canonical format); its lower triangle in CSC is row r's
-entries c >= r as column r (the same arrays by symmetry). Column pointers are int64, row indices int32 (one
-compiled specialisation each).
+Conventions: a symmetric CSR with sorted rows (scipy's canonical format); its upper triangle in CSC is row r's
+entries c <= r as column r (the same arrays by symmetry: a prefix of each row, ending at the diagonal). CHOLMOD
+factors that triangle with one permuted transpose where the lower one costs two (:mod:`idp.solver.cholmod_cvxopt`).
+The merge walks and the symmetric forms take the columns of either triangle. Column pointers are int64, row indices
+int32 (one compiled specialisation each).
 """
 
 from __future__ import annotations
@@ -20,34 +22,35 @@ import numpy as np
 
 __all__ = [
     "locate_entries",
-    "lower_columns",
-    "symmetric_from_lower",
+    "symmetric_from_triangle",
     "union_columns",
-    "vertex_graph_from_lower",
+    "upper_columns",
+    "vertex_graph_from_triangle",
 ]
 
 
 @numba.njit(cache=True)
-def lower_columns(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover
-    """(lptr, sel, diagonal): the column pointers of the lower triangle of a symmetric CSR with sorted rows
-    (column r = the entries c >= r of row r, so its rows are ``indices[sel]``), the mask ``sel`` of those entries
-    in CSR order, and whether every column starts at its diagonal entry."""
+def upper_columns(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:  # pragma: no cover
+    """(uptr, sel, diagonal): the column pointers of the upper triangle of a symmetric CSR with sorted rows
+    (column r = the entries c <= r of row r, so its rows are ``indices[sel]``), the mask ``sel`` of those entries
+    in CSR order, and whether every column ends at its diagonal entry."""
     n = indptr.size - 1
-    lptr = np.zeros(n + 1, np.int64)
+    uptr = np.zeros(n + 1, np.int64)
     sel = np.zeros(indices.size, np.bool_)
     diagonal = True
     for r in range(n):
         count = 0
+        last = -1
         for k in range(indptr[r], indptr[r + 1]):
-            if indices[k] >= r:
-                if count == 0 and indices[k] != r:
-                    diagonal = False
-                sel[k] = True
-                count += 1
-        if count == 0:
+            if indices[k] > r:
+                break
+            sel[k] = True
+            last = indices[k]
+            count += 1
+        if last != r:
             diagonal = False
-        lptr[r + 1] = lptr[r] + count
-    return lptr, sel, diagonal
+        uptr[r + 1] = uptr[r] + count
+    return uptr, sel, diagonal
 
 
 @numba.njit(cache=True)
@@ -113,7 +116,7 @@ def union_columns(
 
 
 @numba.njit(cache=True)
-def _symmetric_from_lower(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+def _symmetric_from_triangle(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     n = aptr.size - 1
     counts = np.zeros(n, np.int64)
     for j in range(n):
@@ -127,8 +130,9 @@ def _symmetric_from_lower(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarra
         indptr[j + 1] = indptr[j] + counts[j]
     fill = indptr[:-1].copy()
     indices = np.empty(indptr[n], np.int32)
-    # columns in increasing order: row i receives its entries left of the diagonal (j < i, increasing) before
-    # column i hands it its own diagonal and right part (sorted), so every row comes out sorted
+    # columns in increasing order. Lower triangle: row i receives its entries left of the diagonal (j < i, increasing)
+    # before column i hands it its own diagonal and right part (sorted). Upper triangle: column i hands row i its
+    # left part and diagonal (sorted) before any later column j > i adds j (increasing). Either way rows come out sorted
     for j in range(n):
         for p in range(aptr[j], aptr[j + 1]):
             i = arow[p]
@@ -140,25 +144,25 @@ def _symmetric_from_lower(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarra
     return indptr, indices
 
 
-def symmetric_from_lower(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(indptr, indices): the CSR, rows sorted, of the symmetric pattern whose lower triangle has the columns
-    (aptr, arow); int32 arrays where they fit, as scipy would make them."""
-    indptr, indices = _symmetric_from_lower(aptr, arow)
+def symmetric_from_triangle(aptr: np.ndarray, arow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices): the CSR, rows sorted, of the symmetric pattern whose lower or upper triangle has the
+    columns (aptr, arow); int32 arrays where they fit, as scipy would make them."""
+    indptr, indices = _symmetric_from_triangle(aptr, arow)
     if indptr[-1] < np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
     return indptr, indices
 
 
 @numba.njit(cache=True)
-def vertex_graph_from_lower(
+def vertex_graph_from_triangle(
     aptr: np.ndarray, arow: np.ndarray, d: int
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
-    """(xadj, adjncy) of the vertex graph of the symmetric pattern whose lower triangle has the columns
+    """(xadj, adjncy) of the vertex graph of the symmetric pattern whose lower or upper triangle has the columns
     (aptr, arow), vertex v owning DOFs d·v .. d·v + d − 1: vertices adjacent when any of their DOFs couple, no
     self loops, neighbours sorted (the graph :func:`idp.solver.linear.vertex_graph` makes of the full pattern)."""
     nv = (aptr.size - 1) // d
     mark = np.full(nv, -1, np.int64)
-    below = np.empty(arow.size, np.int64)  # per vertex column: its distinct neighbours of higher index
+    below = np.empty(arow.size, np.int64)  # per vertex column: its distinct neighbours in that triangle
     bptr = np.zeros(nv + 1, np.int64)
     degree = np.zeros(nv, np.int64)
     q = 0
@@ -179,8 +183,9 @@ def vertex_graph_from_lower(
     adjncy = np.empty(xadj[nv], np.int64)
     fill = xadj[:-1].copy()
     for vc in range(nv):
-        # the lower neighbours (vc' < vc) arrived in increasing order from earlier columns; the higher ones in
-        # DOF-column order: sorted here
+        # lower triangle: the lower neighbours (vc' < vc) arrived in increasing order from earlier columns, the higher
+        # ones come in DOF-column order; upper triangle: nothing arrived yet, the lower ones come in DOF-column order
+        # (the higher ones arrive later, increasing). The run in DOF-column order is sorted here
         start = fill[vc]
         for t in range(bptr[vc], bptr[vc + 1]):
             vr = below[t]
