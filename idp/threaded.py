@@ -45,6 +45,9 @@ class _Worker:
                 kernel(*args)
             except BaseException as exc:  # handed to the caller by wait()
                 self._error = exc
+            # the part's arguments are not kept while the thread waits for the next one: they held the last call's
+            # arrays alive (bunnyx30_13K: the contact Hessian blocks, up to 73 MB, through the factorisation)
+            del kernel, args
             self._job = None
             self._done.release()
 

@@ -61,6 +61,29 @@ def test_a_range_below_two_grains_stays_on_the_calling_thread() -> None:
     assert np.unique(first[:128]).tolist() == [0, 64]
 
 
+def test_the_workers_keep_no_array_of_a_finished_call() -> None:
+    """After a call returns, its arrays live only as long as the caller keeps them (a worker holding the last call's
+    arguments kept the contact Hessian blocks alive through the next factorisation)."""
+    if MAX_THREADS < 2:
+        pytest.skip("needs two threads: one part runs on the calling thread")
+    import gc
+    import weakref
+
+    previous = numba.get_num_threads()
+    numba.set_num_threads(2)
+    try:
+        a = np.linspace(-1.0, 1.0, 1000)
+        out, first = np.empty(1000), np.empty(1000, np.int64)
+        threaded.run_in_parts(_square_plus_part, 1000, a, out, first)
+        assert np.unique(first).size == 2  # the second part ran on a worker
+        refs = [weakref.ref(v) for v in (a, out, first)]
+        del a, out, first
+        gc.collect()
+        assert all(r() is None for r in refs)
+    finally:
+        numba.set_num_threads(previous)
+
+
 def test_nothing_to_do() -> None:
     out, first = _run(0, MAX_THREADS)
     assert np.isnan(out).all() and (first == -1).all()
