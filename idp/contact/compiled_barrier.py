@@ -499,6 +499,7 @@ def barrier_hessian_blocks(
     vertex_map: np.ndarray,
     project: bool = True,
     out: tuple[np.ndarray, np.ndarray] | None = None,
+    rows: tuple[int, int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-collision Hessian blocks on the optimised vertices only.
 
@@ -506,9 +507,17 @@ def barrier_hessian_blocks(
     that is not optimised (static obstacle, pinned). Returns ``block_verts`` (m, 4) int32 (output ids,
     −1 padded) and ``blocks`` (m, 12, 12): the leading 3n×3n of block c belongs to its n kept vertices
     (vertex-major); with ``project`` each block is projected to PSD after the restriction. ``out``: C-contiguous
-    (m, 4) int32 and (m, 12, 12) float64 arrays to write into (rows of larger arrays: several sets' blocks in one
-    allocation, never concatenated)."""
+    (m, 4) int32 and (m, 12, 12) float64 arrays to write into (rows of larger arrays, or a buffer reused range
+    after range). ``rows``: (c0, c1), the blocks of collisions c0 … c1 − 1 only (m = c1 − c0; the same kernel on
+    views of the collision arrays, so each block is the one the whole set would give)."""
+    arrays = _collision_arrays(cs, dhat)
     m = len(cs)
+    if rows is not None:
+        c0, c1 = int(rows[0]), int(rows[1])
+        if not 0 <= c0 <= c1 <= m:
+            raise ValueError(f"rows {rows} outside the {m} collisions")
+        arrays = (*(a[c0:c1] for a in arrays[:5]), arrays[5])
+        m = c1 - c0
     if out is None:
         block_verts, blocks = np.empty((m, 4), np.int32), np.empty((m, 12, 12))
     else:
@@ -522,7 +531,7 @@ def barrier_hessian_blocks(
             _hessian_chunk,
             m,
             V,
-            *_collision_arrays(cs, dhat),
+            *arrays,
             float(kappa),
             np.ascontiguousarray(vertex_map, dtype=np.int64),
             bool(project),

@@ -9,7 +9,7 @@ inside ``BarrierPotential`` (rebuilt when κ changes).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import ipctk
 import numpy as np
@@ -62,6 +62,54 @@ class ContactEvaluation:
     collisions: ipctk.NormalCollisions | CollisionSet
     surface_positions: np.ndarray
     num_active: int
+
+
+class HessianBlockStream:
+    """The projected per-collision Hessian blocks of one or more collision sets (the active pairs, then a look-ahead
+    set), numbered one after the other, computed for a range of collisions at a time into the caller's buffer.
+
+    A matrix assembly that adds each range before computing the next never holds every block: at bunnyx30_13K
+    with the contact look-ahead the blocks of one Newton matrix (up to ≈ 63,000 of 1.2 KB) were 73 MB alive at
+    once, the run's peak memory. ``block_verts`` (m, 4) int32 (output vertex ids, −1 padded) is small and kept
+    whole: row c is written when a range covering c is computed. Each block is the one the whole set gives
+    (:func:`idp.contact.compiled_barrier.barrier_hessian_blocks` on views of its arrays)."""
+
+    def __init__(self, cb: Any, sets: list[tuple[Any, float, float]], positions: np.ndarray, vertex_map: np.ndarray):
+        self._cb = cb
+        self._sets = sets  # (collision set, activation distance, stiffness)
+        self._positions = positions
+        self._vertex_map = np.ascontiguousarray(vertex_map, dtype=np.int64)
+        self._offsets = np.cumsum([0] + [len(cs) for cs, _, _ in sets])
+        self.block_verts = np.empty((int(self._offsets[-1]), 4), np.int32)
+
+    def __len__(self) -> int:
+        return int(self._offsets[-1])
+
+    @property
+    def n_ahead(self) -> int:
+        """Blocks after the first set's (the look-ahead set's)."""
+        return len(self) - int(self._offsets[1])
+
+    def blocks(self, c0: int, c1: int, buffer: np.ndarray) -> np.ndarray:
+        """The blocks of collisions c0 … c1 − 1, written into ``buffer[: c1 − c0]`` ((≥ c1 − c0, 12, 12),
+        C-contiguous), which is returned; fills ``block_verts[c0:c1]``."""
+        out = buffer[: c1 - c0]
+        for k, (cs, dhat, kappa) in enumerate(self._sets):
+            lo, hi = max(c0, int(self._offsets[k])), min(c1, int(self._offsets[k + 1]))
+            if lo >= hi:
+                continue
+            off = int(self._offsets[k])
+            self._cb.barrier_hessian_blocks(
+                cs,
+                self._positions,
+                dhat,
+                kappa,
+                self._vertex_map,
+                True,
+                out=(self.block_verts[lo:hi], out[lo - c0 : hi - c0]),
+                rows=(lo - off, hi - off),
+            )
+        return out
 
 
 class ContactModel:
@@ -378,45 +426,35 @@ class ContactModel:
             ev.collisions, ev.surface_positions, self.dhat, self.kappa, vertex_map, project
         )
 
-    def hessian_blocks_with_lookahead(
-        self, ev: ContactEvaluation, vertex_map: np.ndarray, reach: float, stiffness: float, candidates
-    ) -> tuple[np.ndarray, np.ndarray, int]:
-        """Compiled barrier only: :meth:`hessian_blocks` (projected) followed by the PSD blocks of a look-ahead
-        barrier with activation distance ``reach``·d̂ and stiffness ``stiffness``·κ over the ``candidates``
-        (fv, ee) within that distance at ``ev``'s positions, restricted the same way; returns (block_verts,
-        blocks, number of look-ahead blocks). Added to a Newton matrix the look-ahead blocks make a majorant that
-        sees pairs just outside d̂ (:class:`idp.solver.newton.StepSolver`, ``contact_lookahead``, which passes the
-        sweep of the move CCD last cut short: the pairs the direction ran into); never part of the energy. Both
-        sets are written into one allocation (at bunnyx30_13K each holds up to ≈ 35,000 blocks, 40 MB:
-        concatenating them raised the run's peak memory by ≈ 80 MB)."""
+    def hessian_block_stream(
+        self,
+        ev: ContactEvaluation,
+        vertex_map: np.ndarray,
+        lookahead: tuple[float, float, Any] | None = None,
+    ) -> HessianBlockStream:
+        """Compiled barrier only: the projected Hessian blocks of :meth:`hessian_blocks`, to be computed a range of
+        collisions at a time by whoever adds them into a matrix (:class:`HessianBlockStream`), never all at once.
+
+        ``lookahead`` = (reach, stiffness, candidates): after them, the PSD blocks of a look-ahead barrier with
+        activation distance reach·d̂ and stiffness stiffness·κ over the ``candidates`` (fv, ee) within that distance
+        at ``ev``'s positions, restricted the same way. Added to a Newton matrix the look-ahead blocks make a
+        majorant that sees pairs just outside d̂ (:class:`idp.solver.newton.StepSolver`, ``contact_lookahead``,
+        which passes the sweep of the move CCD last cut short: the pairs the direction ran into); never part of
+        the energy."""
         if not self.compiled:
-            raise RuntimeError("look-ahead blocks need the compiled barrier")
+            raise RuntimeError("Hessian block streams need the compiled barrier")
         vs = ev.surface_positions
-        ahead = None
-        if self.kappa != 0.0 and candidates is not None:
-            fv, ee = candidates
-            ahead = self._cb.build_collision_set(
-                vs, self._edges, self._faces, fv, ee, reach * self.dhat, self._edge_rest_len2
-            )
-        m_ahead = len(ahead) if ahead is not None else 0
-        m = len(ev.collisions)
-        block_verts = np.empty((m + m_ahead, 4), np.int32)
-        blocks = np.empty((m + m_ahead, 12, 12))
-        cb = self._cb
-        cb.barrier_hessian_blocks(
-            ev.collisions, vs, self.dhat, self.kappa, vertex_map, True, out=(block_verts[:m], blocks[:m])
-        )
-        if m_ahead:
-            cb.barrier_hessian_blocks(
-                ahead,
-                vs,
-                reach * self.dhat,
-                stiffness * self.kappa,
-                vertex_map,
-                True,
-                out=(block_verts[m:], blocks[m:]),
-            )
-        return block_verts, blocks, m_ahead
+        sets = [(ev.collisions, self.dhat, self.kappa)]
+        if lookahead is not None:
+            reach, stiffness, candidates = lookahead
+            if self.kappa != 0.0 and candidates is not None:
+                fv, ee = candidates
+                ahead = self._cb.build_collision_set(
+                    vs, self._edges, self._faces, fv, ee, reach * self.dhat, self._edge_rest_len2
+                )
+                if len(ahead):
+                    sets.append((ahead, reach * self.dhat, stiffness * self.kappa))
+        return HessianBlockStream(self._cb, sets, vs, vertex_map)
 
     def min_distance(self, ev: ContactEvaluation) -> float:
         """Smallest distance among active pairs (not squared); ``inf`` when no pair is within d̂."""

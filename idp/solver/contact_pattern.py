@@ -142,11 +142,13 @@ def _scatter_blocks_parts(
 @numba.njit(cache=True)
 def _embed_blocks(src, src_vptr, src_deg, dst_vptr, dst_deg, dst_block, d, dst):  # pragma: no cover
     """dst[...] = src[...] for every d×d block of a block layout, block e of ``src`` going to block
-    ``dst_block[e]`` of the larger layout of ``dst`` (same block rows): a per-block map instead of a per-entry one
-    (at bunnyx30_13K 1.8 MB instead of 16 MB, alive all run)."""
+    ``dst_block[e]`` of the layout of ``dst`` (same block rows; < 0: not there, skipped): a per-block map instead
+    of a per-entry one (at bunnyx30_13K 1.8 MB instead of 16 MB, alive all run)."""
     for i in range(src_vptr.size - 1):
         s_stride, t_stride = d * src_deg[i], d * dst_deg[i]
         for e in range(src_vptr[i], src_vptr[i + 1]):
+            if dst_block[e] < 0:
+                continue
             s0 = d * d * src_vptr[i] + d * (e - src_vptr[i])
             t0 = d * d * dst_vptr[i] + d * (dst_block[e] - dst_vptr[i])
             for a in range(d):
@@ -163,6 +165,25 @@ def _union_sorted(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     inside = pos < a.size
     found[inside] = a[pos[inside]] == b[inside]
     return np.insert(a, pos[~found], b[~found])
+
+
+#: collisions whose Hessian blocks are computed and added at a time (:meth:`GrowingBlockPattern.add_block_stream`):
+#: a 9.4 MB buffer of 12 × 12 blocks
+BLOCK_CHUNK = 8192
+
+
+class _BlocksInMemory:
+    """Blocks already computed, as :meth:`GrowingBlockPattern.add_block_stream` reads a stream (no copy)."""
+
+    def __init__(self, block_verts: np.ndarray, blocks: np.ndarray):
+        self.block_verts = block_verts
+        self._blocks = blocks
+
+    def __len__(self) -> int:
+        return int(self.block_verts.shape[0])
+
+    def blocks(self, c0: int, c1: int, buffer: np.ndarray) -> np.ndarray:
+        return self._blocks[c0:c1]
 
 
 class GrowingBlockPattern:
@@ -355,62 +376,100 @@ class GrowingBlockPattern:
     def assemble_blocks(self, base_data: np.ndarray, block_verts: np.ndarray, blocks: np.ndarray) -> sp.csr_matrix:
         """CSR of the base values plus per-collision vertex blocks (``block_verts`` (m, 4) free-vertex ids,
         −1 padded; ``blocks`` (m, 12, 12), the leading d·n × d·n block of collision c belonging to its n
-        vertices), with the same fold / grow policy as :meth:`assemble`."""
+        vertices), with the same fold / grow policy as :meth:`assemble`: :meth:`add_block_stream` over blocks
+        already computed."""
+        return self.add_block_stream(self._full_data(base_data), _BlocksInMemory(block_verts, blocks))
+
+    def embed(self, base_data: np.ndarray) -> np.ndarray:
+        """The base values on the current layout for :meth:`add_block_stream`, which adds into them: ``base_data``
+        itself (taken over, not copied) while the layout is the base pattern, else a new array (the caller may
+        then drop ``base_data``: at bunnyx30_13K 16 MB not alive while the contact blocks are computed)."""
+        if self._base_to_full is None:
+            return base_data
+        return self._full_data(base_data)
+
+    def add_block_stream(self, data: np.ndarray, stream, chunk: int = BLOCK_CHUNK) -> sp.csr_matrix:
+        """CSR of ``data`` (values on the current layout, from :meth:`embed`; added into) plus the per-collision
+        blocks of ``stream`` (:class:`idp.contact.model.HessianBlockStream`, or blocks in memory): ``chunk``
+        collisions at a time are computed into one buffer and added, so the blocks are never all alive.
+
+        Vertex pairs absent from the layout are listed with their entries as they come; after the last range a few
+        are folded onto the diagonal (:meth:`_fold`), more grow the layout: the values are carried over to the grown
+        layout and the listed entries added in their order. Every entry thus receives its collisions in increasing
+        order, whatever ``chunk`` and the thread count: the same sums, bit for bit, as adding all blocks at once
+        (and, after a growth, as adding them all again on the grown layout)."""
         self.fold_correction = None
         self._folded = None
-        data = self._full_data(base_data)
-        if block_verts.shape[0] == 0:
+        m = len(stream)
+        if m == 0:
             return self._matrix(data)
+        d = self.base.d
+        buffer = np.empty((min(chunk, m), 12, 12))
+        listed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        for c0 in range(0, m, chunk):
+            c1 = min(m, c0 + chunk)
+            blocks = stream.blocks(c0, c1, buffer)
+            bv = stream.block_verts[c0:c1]
+            where = self._scatter_listing(bv, blocks, data)
+            if where.shape[0]:
+                c, a, b = where[:, 0], where[:, 1], where[:, 2]
+                va, vb = bv[c, a].astype(np.int64), bv[c, b].astype(np.int64)
+                r = np.arange(d)
+                rows = np.broadcast_to((va[:, None, None] * d + r[None, :, None]), (c.size, d, d)).ravel()
+                cols = np.broadcast_to((vb[:, None, None] * d + r[None, None, :]), (c.size, d, d)).ravel()
+                ia = (a * d)[:, None, None] + r[None, :, None]
+                ib = (b * d)[:, None, None] + r[None, None, :]
+                listed.append((rows, cols, blocks[c[:, None, None], ia, ib].ravel()))
+        del buffer
+        if not listed:
+            return self._matrix(data)
+        rows, cols, vals = (np.concatenate(parts) for parts in zip(*listed, strict=True))
+        del listed
+        if self._fold(data, rows, cols, vals):
+            return self._matrix(data)
+        bv = stream.block_verts.astype(np.int64)
+        pa = np.broadcast_to(bv[:, :, None], (bv.shape[0], 4, 4))
+        pb = np.broadcast_to(bv[:, None, :], (bv.shape[0], 4, 4))
+        live = (pa >= 0) & (pb >= 0)
+        keys = pa[live] * self.base.nfv + pb[live]
+        del bv, pa, pb, live
+        old = self.layout
+        old_keys, old_vptr, old_deg = old.keys, old.vptr, old.deg  # (the large index arrays are freed)
+        del old
+        self._grow_keys(keys)
+        del keys
+        new = self.layout
+        # the values carried over block by block; a stale coupling the growth dropped holds zero (no block of this
+        # matrix couples its vertices, and folds only touch diagonal blocks) and is skipped
+        where = np.searchsorted(new.keys, old_keys)
+        kept = where < new.keys.size
+        kept[kept] = new.keys[where[kept]] == old_keys[kept]
+        grown = np.zeros(new.nnz)
+        _embed_blocks(data, old_vptr, old_deg, new.vptr, new.deg, np.where(kept, where, -1), d, grown)
+        del data, where, kept
+        pos, found = new.entry_positions(rows, cols)
+        if not found.all():
+            raise AssertionError("contact blocks missing from the grown pattern")
+        np.add.at(grown, pos, vals)
+        return self._matrix(grown)
+
+    def _scatter_listing(self, block_verts: np.ndarray, blocks: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Add the blocks into ``out``; return the absent vertex pairs as rows [collision, a, b], ordered by
+        collision, then a, then b (as the serial loop finds them), on one thread per part of the rows."""
+        L = self.layout
         d, nfv = self.base.d, self.base.nfv
-
-        parts = self._parts
-
-        def scatter(out, missing):
-            """Add the blocks into ``out``; list the absent pairs in ``missing`` (as the serial loop would, by
-            collision, then vertex pair) up to its length; return their number."""
-            L = self.layout
-            if parts == 1:
-                return _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
-            cap = max(missing.shape[0], 1)
-            lists = np.empty((parts, cap, 3), np.int64)
-            counts = np.zeros(parts, np.int64)
-            _scatter_blocks_parts(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, self._owner, lists, counts)
-            total = int(counts.sum())
-            if total and missing.shape[0]:
-                found = np.concatenate([lists[p, : min(int(counts[p]), cap)] for p in range(parts)])
-                found = found[np.lexsort((found[:, 2], found[:, 1], found[:, 0]))]
-                k = min(found.shape[0], missing.shape[0])
-                missing[:k] = found[:k]
-            return total
-
-        where = np.empty((16 * max(self.fold_limit, 64), 3), np.int64)  # room for the usual few missing pairs
-        missing = scatter(data, where)
-        if missing:
-            if missing > where.shape[0]:  # more than there was room for: list them all
-                where = np.empty((missing, 3), np.int64)
-                del data  # stale values: freed before the new ones are allocated
-                data = self._full_data(base_data)
-                scatter(data, where)
-            where = where[:missing]
-            c, a, b = where[:, 0], where[:, 1], where[:, 2]
-            va, vb = block_verts[c, a].astype(np.int64), block_verts[c, b].astype(np.int64)
-            r = np.arange(d)
-            rows = np.broadcast_to((va[:, None, None] * d + r[None, :, None]), (c.size, d, d)).ravel()
-            cols = np.broadcast_to((vb[:, None, None] * d + r[None, None, :]), (c.size, d, d)).ravel()
-            vals = blocks[
-                c[:, None, None], (a * d)[:, None, None] + r[None, :, None], (b * d)[:, None, None] + r[None, None, :]
-            ].ravel()
-            if not self._fold(data, rows, cols, vals):
-                bv = block_verts.astype(np.int64)
-                pa = np.broadcast_to(bv[:, :, None], (bv.shape[0], 4, 4))
-                pb = np.broadcast_to(bv[:, None, :], (bv.shape[0], 4, 4))
-                live = (pa >= 0) & (pb >= 0)
-                self._grow_keys(pa[live] * nfv + pb[live])
-                del data  # stale values: freed before the new ones are allocated
-                data = self._full_data(base_data)
-                if scatter(data, np.zeros((0, 3), np.int64)):
-                    raise AssertionError("contact blocks missing from the grown pattern")
-        return self._matrix(data)
+        cap = 16 * block_verts.shape[0]  # every pair of every collision: no list can overflow
+        if self._parts == 1:
+            missing = np.empty((cap, 3), np.int64)
+            n = _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
+            return missing[:n]
+        lists = np.empty((self._parts, cap, 3), np.int64)
+        counts = np.zeros(self._parts, np.int64)
+        _scatter_blocks_parts(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, self._owner, lists, counts)
+        if not counts.any():
+            return np.zeros((0, 3), np.int64)
+        found = np.concatenate([lists[p, : int(counts[p])] for p in range(self._parts)])
+        return found[np.lexsort((found[:, 2], found[:, 1], found[:, 0]))]
 
     def exact_matrix(self) -> sp.csr_matrix:
         """The last (folded) matrix without folding, on the pattern grown by the folded couplings.

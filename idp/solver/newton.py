@@ -269,18 +269,14 @@ class StepSolver:
         if not active:
             return g, s.contact_pattern.assemble(data)
         if s.contact.compiled:
-            if self._lookahead:
-                block_verts, blocks, n_ahead = s.contact.hessian_blocks_with_lookahead(
-                    ev,
-                    s.collision_vertex_to_free,
-                    self.settings.contact_lookahead,
-                    LOOKAHEAD_STIFFNESS,
-                    self._cut_sweep,
-                )
-                self._lookahead_used = n_ahead > 0
-            else:
-                block_verts, blocks = s.contact.hessian_blocks(ev, s.collision_vertex_to_free)
-            return g, s.contact_pattern.assemble_blocks(data, block_verts, blocks)
+            ahead = (self.settings.contact_lookahead, LOOKAHEAD_STIFFNESS, self._cut_sweep) if self._lookahead else None
+            stream = s.contact.hessian_block_stream(ev, s.collision_vertex_to_free, ahead)
+            self._lookahead_used = stream.n_ahead > 0
+            # the elastic values on the contact layout; then the contact blocks added a range at a time (neither the
+            # values on the base layout nor all the blocks are alive together with the factor: issue 16, memory)
+            values = s.contact_pattern.embed(data)
+            del data
+            return g, s.contact_pattern.add_block_stream(values, stream)
         return g, s.contact_pattern.assemble(data, s.contact.hessian(ev), s.collision_dof_to_free)
 
     def _init_kappa(self, x, x_prev, ev):

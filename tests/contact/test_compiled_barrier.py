@@ -132,6 +132,28 @@ def test_restricted_blocks_are_the_projected_principal_blocks(scene):
                 assert np.linalg.eigvalsh(B).min() >= -1e-9 * max(np.abs(B).max(), 1e-300)
 
 
+def test_blocks_of_a_range_of_collisions_are_those_of_the_whole_set():
+    """``rows=(c0, c1)``: the blocks of those collisions only, bit for bit the whole set's rows c0 … c1 − 1; a range
+    outside the set is refused."""
+    from idp.contact import compiled_barrier as cb
+
+    x, _, new = both("stacked_jittered")
+    en = new.evaluate(x)
+    vs = en.surface_positions
+    vmap = np.arange(vs.shape[0], dtype=np.int64)
+    cs = en.collisions
+    m = len(cs)
+    assert m > 4
+    bv, blocks = cb.barrier_hessian_blocks(cs, vs, new.dhat, new.kappa, vmap, True)
+    c0, c1 = 2, m - 1
+    rbv, rblocks = cb.barrier_hessian_blocks(cs, vs, new.dhat, new.kappa, vmap, True, rows=(c0, c1))
+    assert rbv.shape == (c1 - c0, 4)
+    for g, w in zip(cb.blocks_to_coo(rbv, rblocks), cb.blocks_to_coo(bv[c0:c1], blocks[c0:c1]), strict=True):
+        np.testing.assert_array_equal(g, w)
+    with pytest.raises(ValueError, match="outside"):
+        cb.barrier_hessian_blocks(cs, vs, new.dhat, new.kappa, vmap, True, rows=(0, m + 1))
+
+
 def test_swept_candidates_cover_the_segment():
     x, ref, new = both("stacked_jittered", dhat=0.02)
     y = x.copy()

@@ -117,9 +117,11 @@ def test_auto_is_the_default_and_resolves_per_scene():
     assert build_scene(scene_from_dict(d)).newton.contact_lookahead == 0.0
 
 
-def test_blocks_with_lookahead_are_the_two_sets_in_one_allocation():
-    # the active set's blocks, then the look-ahead set's (activation reach·d̂, stiffness share·κ) — computed into
-    # one array instead of concatenated; the same kernel on the same inputs, so equal bit for bit
+@pytest.mark.parametrize("chunk", [1, 5, 10_000])
+def test_block_stream_is_the_two_sets_a_range_at_a_time(chunk):
+    # the active set's blocks, then the look-ahead set's (activation reach·d̂, stiffness share·κ), numbered one after
+    # the other and computed a range at a time (ranges may straddle the two sets); the same kernel on views of the
+    # same inputs, so equal bit for bit to each set computed whole
     x, surf, nd = stacked(0.02, 0.0, 4)  # two stacked boxes 0.02 apart, the upper one moving down by 0.015
     cm = ContactModel(x, surf, nd, dhat=0.025, kappa=3.0)
     y = x.copy()
@@ -128,10 +130,16 @@ def test_blocks_with_lookahead_are_the_two_sets_in_one_allocation():
     vs = cm.surface_positions(x)
     vmap = np.arange(vs.shape[0], dtype=np.int64)
     cand = cm.sweep_candidates(x, y)  # as the Newton loop passes them: the sweep of the move CCD cut
-    bv, blocks, n_ahead = cm.hessian_blocks_with_lookahead(ev, vmap, 3.0, 0.01, cand)
+    stream = cm.hessian_block_stream(ev, vmap, (3.0, 0.01, cand))
     a_bv, a_blocks = cm.hessian_blocks(ev, vmap)
-    m = a_bv.shape[0]
-    assert m > 0 and n_ahead >= m and bv.shape[0] == m + n_ahead  # the wider set holds the active pairs
+    m, n_ahead = a_bv.shape[0], stream.n_ahead
+    assert m > 0 and n_ahead >= m and len(stream) == m + n_ahead  # the wider set holds the active pairs
+    blocks = np.empty((len(stream), 12, 12))
+    buffer = np.empty((chunk, 12, 12))
+    for c0 in range(0, len(stream), chunk):
+        c1 = min(len(stream), c0 + chunk)
+        blocks[c0:c1] = stream.blocks(c0, c1, buffer)
+    bv = stream.block_verts
     ahead = cb.build_collision_set(vs, cm._edges, cm._faces, cand[0], cand[1], 3.0 * cm.dhat, cm._edge_rest_len2)
     l_bv, l_blocks = cb.barrier_hessian_blocks(ahead, vs, 3.0 * cm.dhat, 0.01 * cm.kappa, vmap, True)
     # only each block's leading 3n × 3n belongs to its n vertices (the rest is never read): compare those entries
@@ -139,4 +147,5 @@ def test_blocks_with_lookahead_are_the_two_sets_in_one_allocation():
         for g, w in zip(cb.blocks_to_coo(*got), cb.blocks_to_coo(*want), strict=True):
             np.testing.assert_array_equal(g, w)
     # κ = 0 or no candidates: the active blocks alone
-    assert cm.hessian_blocks_with_lookahead(ev, vmap, 3.0, 0.01, None)[2] == 0
+    assert cm.hessian_block_stream(ev, vmap, (3.0, 0.01, None)).n_ahead == 0
+    assert len(cm.hessian_block_stream(ev, vmap)) == m

@@ -258,3 +258,77 @@ def test_block_scatter_on_several_threads_equals_the_serial_one(fold_limit):
     assert (K1 is None) == (K2 is None)
     if K1 is not None:
         np.testing.assert_array_equal(K1, K2)
+
+
+def _random_collision_blocks(rng, nfv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """m collisions of 1–4 distinct free vertices with symmetric PSD 12 × 12 blocks."""
+    bv = np.full((m, 4), -1, np.int32)
+    for c in range(m):
+        k = 1 + c % 4
+        bv[c, :k] = rng.choice(nfv, size=k, replace=False)
+    A = rng.standard_normal((m, 12, 12))
+    return bv, np.einsum("mij,mkj->mik", A, A)
+
+
+class _Stream:
+    """Blocks handed out a range at a time through the caller's buffer, as the contact model's stream does."""
+
+    def __init__(self, bv: np.ndarray, blocks: np.ndarray):
+        self._bv, self._blocks = bv, blocks
+        self.block_verts = np.full_like(bv, -7)  # written range by range, as the contact model's
+        self.ranges: list[tuple[int, int]] = []
+
+    def __len__(self) -> int:
+        return self._bv.shape[0]
+
+    def blocks(self, c0, c1, buffer):
+        self.ranges.append((c0, c1))
+        self.block_verts[c0:c1] = self._bv[c0:c1]
+        buffer[: c1 - c0] = self._blocks[c0:c1]
+        return buffer[: c1 - c0]
+
+
+@pytest.mark.parametrize("fold_limit", [0, 10_000])
+@pytest.mark.parametrize("chunk", [1, 7, 60])
+def test_blocks_added_a_range_at_a_time_equal_all_at_once(chunk, fold_limit):
+    """add_block_stream over ranges of `chunk` collisions: the matrix of adding every block at once, bit for bit,
+    the same fold or growth; after a growth, the values carried over plus the listed entries equal the same blocks
+    added again on the grown layout (each entry gets its collisions in increasing order either way)."""
+    rng, _, asm, blocks, diag = _chain_problem(nv=40, pinned=(0, 39))
+    data = asm.assemble_data([blocks], [1.0], diag)
+    bv, cblocks = _random_collision_blocks(rng, asm.layout.nfv, 60)
+    whole = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+    M_whole = whole.assemble_blocks(data, bv, cblocks)
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+    stream = _Stream(bv, cblocks)
+    M = pattern.add_block_stream(pattern.embed(data.copy()), stream, chunk=chunk)
+    assert stream.ranges == [(c, min(60, c + chunk)) for c in range(0, 60, chunk)]
+    assert (pattern.growths, pattern.folds) == (whole.growths, whole.folds) == ((1, 0) if fold_limit == 0 else (0, 1))
+    assert np.array_equal(M.indptr, M_whole.indptr) and np.array_equal(M.indices, M_whole.indices)
+    np.testing.assert_array_equal(M.data, M_whole.data)
+    if fold_limit == 0:  # grown: the same blocks again on the grown layout find every pair
+        again = pattern.add_block_stream(pattern.embed(data.copy()), _Stream(bv, cblocks), chunk=chunk)
+        assert pattern.growths == 1
+        np.testing.assert_array_equal(M.data, again.data)
+
+
+def test_a_growth_that_drops_stale_couplings_carries_the_live_values_over():
+    """A second set of collisions far from the first: the growth keeps only the live couplings (the stale ones
+    outnumber them), so blocks of the old layout have no place in the new one; the matrix equals the same blocks
+    added on a pattern that only ever saw the second set."""
+    rng, _, asm, blocks, diag = _chain_problem(nv=40, pinned=(0, 39))
+    data = asm.assemble_data([blocks], [1.0], diag)
+    assert asm.layout.nfv > 33  # the free vertices the collisions below name
+    first = np.array([[a, b, -1, -1] for a, b in zip(range(0, 10), range(20, 30), strict=True)], np.int32)
+    second = np.array([[5, 33, -1, -1]], np.int32)
+    A = rng.standard_normal((11, 12, 12))
+    spd = np.einsum("mij,mkj->mik", A, A)
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0, stale_factor=2.0)
+    pattern.add_block_stream(pattern.embed(data.copy()), _Stream(first, spd[:10]), chunk=3)
+    extra_before = pattern.extra.size
+    M = pattern.add_block_stream(pattern.embed(data.copy()), _Stream(second, spd[10:]), chunk=3)
+    assert pattern.growths == 2 and pattern.extra.size < extra_before  # the stale couplings were dropped
+    fresh = GrowingBlockPattern(asm.layout, fold_limit=0, stale_factor=2.0)
+    F = fresh.add_block_stream(fresh.embed(data.copy()), _Stream(second, spd[10:]))
+    assert np.array_equal(M.indptr, F.indptr) and np.array_equal(M.indices, F.indices)
+    np.testing.assert_array_equal(M.data, F.data)
