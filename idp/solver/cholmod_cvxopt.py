@@ -48,7 +48,9 @@ for one factorisation a workspace of the largest update block (8 B per entry) pl
 triangle and CHOLMOD's permuted one (16 B per entry each: long indices).
 Measured (bench/bench_linear.py 3D grid matrices, METIS ordering, RSS growth of ``cholmod.numeric`` read from
 /proc/self/status, peak by VmHWM after resetting it): 12K DOF 48 MB (model 51), 32K DOF 197 MB (model 196),
-66K DOF 489 MB (model 511). Without pymetis CHOLMOD orders inside ``cholmod.symbolic`` (AMD), the ordering is not
+66K DOF 489 MB (model 511) — measured while CHOLMOD was given the lower triangle, before 2026-11-28; the model's
+workspace now counts the two copies of the triangle it holds given the upper one (the step estimates against whole
+runs: :mod:`idp.solver.memory`). Without pymetis CHOLMOD orders inside ``cholmod.symbolic`` (AMD), the ordering is not
 known beforehand and the memory guard skips the check.
 """
 

@@ -236,10 +236,10 @@ class LinearSolver(ABC):
     """
 
     name: str = "abstract"
-    # bytes per stored entry of the (full, both-triangle) Hessian pattern for the matrix itself (CSR, 8 + 4) and the
-    # copies and index maps the assembly and the backend keep of it (checked with the other parts against measured runs,
-    # see idp.solver.memory)
-    hessian_bytes_per_entry: int = 48
+    # bytes per stored entry of the (full, both-triangle) Hessian pattern for the matrix itself (CSR, 8 + 4), the
+    # backend's copy of one triangle (8) and the index maps the assembly keeps of it (checked with the other parts
+    # against measured runs, see idp.solver.memory)
+    hessian_bytes_per_entry: int = 32
 
     def __init__(self, dofs_per_node: int = 3) -> None:
         if int(dofs_per_node) < 1:

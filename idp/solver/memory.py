@@ -24,24 +24,29 @@ The step's peak (:class:`MemoryEstimate`) is
 The interpreter and libraries (≈ 0.3–0.5 GB) are not part of the estimate: they are already resident when it is
 made, so the memory *available* then is what the step may still take.
 
-Measured (``bench/bench_memory.py``, 2-core x86-64 VM; one step of a ball of tets (3D) or a triangulated disk (2D)
-growing inside a box; the run's peak RSS growth over the RSS after building the scene, VmHWM reset through
-/proc/self/clear_refs; estimate: the largest of the run, with the 15 % margin)::
+Measured (``bench/bench_memory.py``, 2-core x86-64 VM (Intel, 2026-11-28); one step of a ball of tets (3D) or a
+triangulated disk (2D) growing inside a box; the run's peak RSS growth over the RSS after building the scene, VmHWM
+reset through /proc/self/clear_refs; estimate: the largest of the run, with the 15 % margin)::
 
     dim solver   DOFs     nnz(A)     nnz(L)      measured  estimate  estimate/measured
-    3D  cholmod   14,739    602,649   4,857,663    105 MB    123 MB   1.18
-    3D  cholmod   46,875  1,977,057  27,743,442    455 MB    520 MB   1.14
-    3D  cholmod  107,811  4,619,817  87,566,742  1,227 MB  1,476 MB   1.20
-    3D  scipy     14,739    602,649   4,857,663    132 MB    179 MB   1.36   (3 Newton iterations)
-    3D  scipy     36,501  1,530,747  17,601,150    425 MB    569 MB   1.34   (3 Newton iterations)
-    2D  cholmod  206,082  2,874,884  16,490,175    399 MB    479 MB   1.20   (4 Newton iterations)
-    2D  cholmod  462,722  6,462,724  41,493,375    856 MB  1,123 MB   1.31   (4 Newton iterations)
+    3D  cholmod   14,739    602,649   4,857,663     85 MB    117 MB   1.38
+    3D  cholmod   46,875  1,977,057  27,743,442    391 MB    502 MB   1.28
+    3D  cholmod  107,811  4,619,817  87,566,742  1,147 MB  1,433 MB   1.25
+    3D  scipy     14,739    602,649   4,857,663    129 MB    167 MB   1.29   (3 Newton iterations)
+    3D  scipy     36,501  1,530,747  17,601,150    420 MB    540 MB   1.29   (3 Newton iterations)
+    2D  cholmod  206,082  2,874,884  16,490,175    321 MB    452 MB   1.41   (4 Newton iterations)
+    2D  cholmod  462,722  6,462,724  41,493,375    742 MB  1,063 MB   1.43   (4 Newton iterations)
 
     bench/bench_memory.py --dim 3 --solver cholmod --sizes 8 12 16
     bench/bench_memory.py --dim 3 --solver scipy --sizes 8 11 --iterations 3
     bench/bench_memory.py --dim 2 --solver cholmod --sizes 160 240 --iterations 4
 
-Without the margin the 3D CHOLMOD rows were 0.99–1.04×: the components are close to what the process really holds.
+The step itself got smaller that day (CHOLMOD given the upper triangle: one copy of it fewer during a factorisation;
+the contact blocks added a range at a time; the elastic values no longer copied; the AMD VM's figures before were
+105 / 455 / 1,227 MB for the three 3D CHOLMOD rows): the model counts the two copies of the stored triangle the
+factorisation holds and 32 B per Hessian entry (the CSR matrix 12, the backend's copy of its triangle 8, the
+layouts' index maps), and stays above every measurement. The earlier calibration (AMD VM, 48 B per entry and one
+copy of the triangle in the workspace) was 1.14–1.20× on the 3D CHOLMOD rows.
 
 Available memory (:func:`available_memory`) is ``MemAvailable`` of /proc/meminfo, capped by the process's cgroup:
 v2 ``memory.max − memory.current`` (less reclaimable ``inactive_file`` page cache), v1
