@@ -516,7 +516,8 @@ def barrier_hessian_blocks(
         c0, c1 = int(rows[0]), int(rows[1])
         if not 0 <= c0 <= c1 <= m:
             raise ValueError(f"rows {rows} outside the {m} collisions")
-        arrays = (*(a[c0:c1] for a in arrays[:5]), arrays[5])
+        verts, kind, local, eps, weight, dhat2 = arrays
+        arrays = (verts[c0:c1], kind[c0:c1], local[c0:c1], eps[c0:c1], weight[c0:c1], dhat2)
         m = c1 - c0
     if out is None:
         block_verts, blocks = np.empty((m, 4), np.int32), np.empty((m, 12, 12))

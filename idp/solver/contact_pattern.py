@@ -438,20 +438,35 @@ class GrowingBlockPattern:
         del old
         self._grow_keys(keys)
         del keys
+        # a stale coupling the growth dropped holds zero here (no block of this matrix couples its vertices, and
+        # folds only touch diagonal blocks)
+        return self._matrix(self._carry_over(data, old_keys, old_vptr, old_deg, rows, cols, vals))
+
+    def _carry_over(
+        self,
+        data: np.ndarray,
+        old_keys: np.ndarray,
+        old_vptr: np.ndarray,
+        old_deg: np.ndarray,
+        rows: np.ndarray,
+        cols: np.ndarray,
+        vals: np.ndarray,
+    ) -> np.ndarray:
+        """Values on the current (just grown) layout: ``data``, on the layout of vertex-pair keys ``old_keys``
+        (with its ``old_vptr``, ``old_deg``), copied block by block (blocks the growth dropped are skipped), plus the
+        DOF entries (rows, cols, vals) added in their order; every entry must have its block in the layout."""
         new = self.layout
-        # the values carried over block by block; a stale coupling the growth dropped holds zero (no block of this
-        # matrix couples its vertices, and folds only touch diagonal blocks) and is skipped
         where = np.searchsorted(new.keys, old_keys)
         kept = where < new.keys.size
         kept[kept] = new.keys[where[kept]] == old_keys[kept]
         grown = np.zeros(new.nnz)
-        _embed_blocks(data, old_vptr, old_deg, new.vptr, new.deg, np.where(kept, where, -1), d, grown)
-        del data, where, kept
+        _embed_blocks(data, old_vptr, old_deg, new.vptr, new.deg, np.where(kept, where, -1), self.base.d, grown)
+        del where, kept
         pos, found = new.entry_positions(rows, cols)
         if not found.all():
-            raise AssertionError("contact blocks missing from the grown pattern")
+            raise AssertionError("entries missing from the grown pattern")
         np.add.at(grown, pos, vals)
-        return self._matrix(grown)
+        return grown
 
     def _scatter_listing(self, block_verts: np.ndarray, blocks: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Add the blocks into ``out``; return the absent vertex pairs as rows [collision, a, b], ordered by
@@ -483,11 +498,8 @@ class GrowingBlockPattern:
         K = self.fold_correction.tocoo()
         old = self.layout
         self._set_extra(_union_sorted(self.extra, self._outside_base(keys)))
-        exact = np.zeros(self.layout.nnz)
-        new = self.layout
-        _embed_blocks(data, old.vptr, old.deg, new.vptr, new.deg, np.searchsorted(new.keys, old.keys), old.d, exact)
-        pos, found = self.layout.entry_positions(K.row.astype(np.int64), K.col.astype(np.int64))
-        assert found.all(), "folded couplings are in the grown pattern"
-        np.add.at(exact, pos, K.data)
+        exact = self._carry_over(
+            data, old.keys, old.vptr, old.deg, K.row.astype(np.int64), K.col.astype(np.int64), K.data
+        )
         self.fold_correction, self._folded = None, None
         return self._matrix(exact)
