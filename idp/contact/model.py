@@ -313,7 +313,8 @@ class ContactModel:
     # -- barrier --------------------------------------------------------------
     def evaluate(self, x: np.ndarray, candidates=None) -> ContactEvaluation:
         """Active collision set at x. ``candidates`` from :meth:`sweep_candidates` (valid for any point of
-        the swept segment) replaces the broad phase, so line-search trials skip it."""
+        the swept segment) replaces the broad phase, so line-search trials skip it. The compiled path hands back its
+        last evaluation when nothing it depends on changed (:meth:`_reusable_evaluation`)."""
         vs = self.surface_positions(x)
         if self.compiled:
             last = self._reusable_evaluation(vs)
@@ -347,11 +348,10 @@ class ContactModel:
         last = self._last_evaluation
         if last is None:
             return None
-        inputs, ev = last
-        now = self._evaluation_inputs()
-        if inputs[0] != now[0] or any(a is not b for a, b in zip(inputs[1:], now[1:], strict=True)):
-            return None
-        return ev if np.array_equal(ev.surface_positions, vs) else None
+        (dhat, *selections), ev = last
+        now_dhat, *now_selections = self._evaluation_inputs()
+        same = dhat == now_dhat and all(a is b for a, b in zip(selections, now_selections, strict=True))
+        return ev if same and np.array_equal(ev.surface_positions, vs) else None
 
     def any_within_dhat(self, x: np.ndarray) -> bool:
         """Whether some pair (of those :meth:`evaluate` would see) is closer than d̂ at x, without building the
