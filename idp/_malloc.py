@@ -26,10 +26,10 @@ scratch arrays, in the main heap and in the worker threads' arenas) are allocate
 iteration, so the heap top was trimmed and faulted again thousands of times a run. The trim threshold is therefore
 set to 16 MiB. Measured on the 2-core Intel VM (bench children, GNU time, thresholds given through the
 environment): bunny_700 minor page faults 154–178 K → 37 K and system time 0.86–1.21 → 0.48–0.74 s, wall lower in
-each of four alternating pairs with 256 MiB (median 7.05 → 6.69 s); 64 and 16 MiB gave the same fault counts,
-4 MiB kept 123 K; bunny_3376 835 K → 332 K faults, system time 3.2 → 2.4 s; bunnyx30_13K 7.48 M → 6.22 M faults, system time
-26.0 → 20.1 s, peak RSS 672.7 → 675.4 MB (64 MiB: 698.7 MB, beyond the 1.2× of the reference's 574 MB that issue 16
-allows).
+each of eight alternating pairs (four with 256 MiB: median 7.05 → 6.69 s; four with 16 MiB: 7.50 → 6.81 s; 64 MiB
+gave the same fault counts, 4 MiB kept 123 K); bunny_3376 835 K → 332 K faults, system time 3.2 → 2.4 s;
+bunnyx30_13K 7.48 M → 6.22 M faults, system time 26.0 → 20.1 s, peak RSS 672.7 → 675.4 MB (64 MiB: 698.7 MB, beyond
+the 1.2× of the reference's 574 MB that issue 16 allows).
 """
 
 from __future__ import annotations
