@@ -61,18 +61,6 @@ FIRST_BATCH = 256
 _CHUNK = 512
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _pair_vertex(i, r, fv, ee, faces, edges):  # pragma: no cover - compiled
-    """Vertex r (0–3) of candidate i: point, triangle (face–vertex candidates, the first fv.shape[0]) or edge,
-    edge. Meant to be inlined (``inline="always"``): the candidate loops below then pass no shared array to a
-    compiled call, each of which would cost two atomic reference-count updates on a cache line both threads use
-    (more than half the time of :func:`_bounds` on 2 threads before)."""
-    nf = fv.shape[0]
-    if i < nf:
-        return fv[i, 1] if r == 0 else faces[fv[i, 0], r - 1]
-    return edges[ee[i - nf, r // 2], r % 2]
-
-
 @njit(cache=True, error_model="numpy")
 def _distance(X, S, point_triangle):  # pragma: no cover - compiled
     if point_triangle:
@@ -98,7 +86,14 @@ def _bounds_range(  # pragma: no cover - compiled
         scale = 0.0
         check = 0.0  # NaN or inf unless every coordinate is finite
         for r in range(4):
-            v = _pair_vertex(i, r, fv, ee, faces, edges)
+            # vertex r of the pair: point, triangle (face–vertex candidates, the first nf) or edge, edge — indexed
+            # here, not by a helper: numba increfs and decrefs the arrays a compiled callee binds, even one it
+            # inlines (`inline="always"`), and faces and edges are shared by both threads (4 × 4 atomic updates a
+            # pair, the largest share of the run's reference counting on bunny_700)
+            if pt:
+                v = fv[i, 1] if r == 0 else faces[fv[i, 0], r - 1]
+            else:
+                v = edges[ee[i - nf, r // 2], r % 2]
             for c in range(3):
                 X[r, c] = V0[v, c]
                 X0[r, c] = V0[v, c]
@@ -208,7 +203,10 @@ def _refine_range(
         pt = i < nf
         scale = 0.0
         for r in range(4):
-            v = _pair_vertex(i, r, fv, ee, faces, edges)
+            if pt:  # vertex r of the pair, indexed here (see _bounds_range)
+                v = fv[i, 1] if r == 0 else faces[fv[i, 0], r - 1]
+            else:
+                v = edges[ee[i - nf, r // 2], r % 2]
             for c in range(3):
                 X0[r, c] = V0[v, c]
                 D[r, c] = V1[v, c] - V0[v, c]
