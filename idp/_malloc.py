@@ -37,7 +37,7 @@ from __future__ import annotations
 import ctypes
 import os
 
-__all__ = ["MMAP_THRESHOLD", "TRIM_THRESHOLD", "fix_mmap_threshold"]
+__all__ = ["MMAP_THRESHOLD", "TRIM_THRESHOLD", "fix_mmap_threshold", "is_glibc"]
 
 #: bytes; allocations of at least this size are mapped on their own and unmapped when freed
 MMAP_THRESHOLD = 4 << 20
@@ -47,14 +47,19 @@ _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameter numbe
 _USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 
+def is_glibc() -> bool:
+    """Whether this process runs on GNU libc (whose malloc the thresholds here are for)."""
+    try:
+        return bool(os.confstr("CS_GNU_LIBC_VERSION"))
+    except (AttributeError, ValueError, OSError):  # not glibc (or not POSIX)
+        return False
+
+
 def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD, trim_threshold: int = TRIM_THRESHOLD) -> bool:
     """Set glibc's mmap threshold to ``threshold`` bytes and its trim threshold to ``trim_threshold`` bytes (both
     fixed from now on). Returns whether they were set: not on other C libraries, nor when the user configured
     glibc's malloc through the environment."""
-    try:
-        if not os.confstr("CS_GNU_LIBC_VERSION"):
-            return False
-    except (AttributeError, ValueError, OSError):  # not glibc (or not POSIX)
+    if not is_glibc():
         return False
     if any(name in os.environ for name in _USER_SETTINGS) or "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", ""):
         return False

@@ -10,6 +10,8 @@ import sys
 
 import pytest
 
+from idp._malloc import is_glibc
+
 _CYCLES = 100
 
 _SCRIPT = f"""
@@ -35,10 +37,7 @@ def _run(extra_env: dict[str, str]) -> dict:
 
 
 def test_heap_top_is_kept_between_iterations():
-    try:
-        if not os.confstr("CS_GNU_LIBC_VERSION"):
-            pytest.skip("not glibc: idp leaves the C library's malloc alone")
-    except (AttributeError, ValueError, OSError):
+    if not is_glibc():
         pytest.skip("not glibc: idp leaves the C library's malloc alone")
     fixed = _run({})
     # glibc's defaults for the trim threshold, with the same fixed mmap threshold (the user's setting: idp then
