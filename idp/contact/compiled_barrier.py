@@ -54,6 +54,7 @@ from idp.contact._distance_kernels import (
     sq_distance_hessian,
 )
 from idp.contact._psd_projection import WORK_ROWS, project_psd
+from idp.thread_choice import ThreadChoice
 from idp.threaded import run_in_parts
 
 #: Fewest items per thread of a kernel run in parts (idp.threaded): about 0.3 ms of work on the 2-core Intel VM
@@ -273,6 +274,9 @@ def _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv):  # pragma: no co
     return verts[out], kind[out], local[out], eps_out[out], weight[out], dist[out]
 
 
+_COMPACT_THREADS = ThreadChoice()
+
+
 class CollisionSet:
     """Active IPC collisions at one configuration, as arrays (see the module docstring)."""
 
@@ -333,7 +337,9 @@ def build_collision_set(
     sqd = np.empty(n)
     eps = np.empty(n)
     classify(V, faces, edges, fv, ee, rest_len2, ctype, sqd, eps)
-    return CollisionSet(*_compact(fv, ee, faces, edges, ctype, sqd, eps, float(dhat) ** 2, V.shape[0]))
+    dhat2, nv = float(dhat) ** 2, V.shape[0]
+    # its parallel regions cost more than they save on small sets (idp.thread_choice; the same arrays either way)
+    return CollisionSet(*_COMPACT_THREADS.run(n, lambda: _compact(fv, ee, faces, edges, ctype, sqd, eps, dhat2, nv)))
 
 
 # --------------------------------------------------------------------------------------------------

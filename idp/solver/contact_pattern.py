@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from idp.solver.assembly import BlockLayout
+from idp.thread_choice import ThreadChoice
 
 
 @numba.njit(cache=True)
@@ -209,6 +210,7 @@ class GrowingBlockPattern:
         # contact blocks are added on one thread per part of the rows (equal runs of vertices)
         self._parts = max(1, min(numba.get_num_threads(), base.nfv))
         self._owner = np.minimum(np.arange(base.nfv) * self._parts // max(base.nfv, 1), self._parts - 1)
+        self._scatter_threads = ThreadChoice()  # one thread or one per part, whichever is faster here
 
     @property
     def last_folded(self) -> bool:
@@ -470,14 +472,27 @@ class GrowingBlockPattern:
 
     def _scatter_listing(self, block_verts: np.ndarray, blocks: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Add the blocks into ``out``; return the absent vertex pairs as rows [collision, a, b], ordered by
-        collision, then a, then b (as the serial loop finds them), on one thread per part of the rows."""
+        collision, then a, then b (as the serial loop finds them): on one thread, or on one per part of the rows,
+        whichever :class:`~idp.thread_choice.ThreadChoice` finds faster here (the same sums and list either way)."""
         L = self.layout
         d, nfv = self.base.d, self.base.nfv
         cap = 16 * block_verts.shape[0]  # every pair of every collision: no list can overflow
-        if self._parts == 1:
+
+        def on_one() -> np.ndarray:
             missing = np.empty((cap, 3), np.int64)
             n = _scatter_blocks(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, missing)
             return missing[:n]
+
+        if self._parts == 1:
+            return on_one()
+        return self._scatter_threads.run(
+            block_verts.shape[0], lambda: self._scatter_parts(block_verts, blocks, out, cap), on_one
+        )
+
+    def _scatter_parts(self, block_verts: np.ndarray, blocks: np.ndarray, out: np.ndarray, cap: int) -> np.ndarray:
+        """:meth:`_scatter_listing` on one thread per part of the rows."""
+        L = self.layout
+        d, nfv = self.base.d, self.base.nfv
         lists = np.empty((self._parts, cap, 3), np.int64)
         counts = np.zeros(self._parts, np.int64)
         _scatter_blocks_parts(block_verts, blocks, L.keys, L.vptr, L.deg, nfv, d, out, self._owner, lists, counts)

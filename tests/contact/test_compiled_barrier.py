@@ -189,3 +189,36 @@ def test_repeated_edge_vertex_pairs_merge_into_the_first_with_their_count():
     want_weight = np.array([1.0 if k < 0 or first[k] != c else float(count[k]) for c, k in enumerate(key.tolist())])
     assert np.array_equal(keep, want_keep)
     assert np.array_equal(weight[keep], want_weight[keep])
+
+
+@pytest.mark.parametrize("scene", ["corner", "stacked_jittered"])
+def test_compaction_on_one_thread_or_all_gives_the_same_set(scene, monkeypatch):
+    """The collision compaction runs on one thread or on all as idp.thread_choice finds faster: both ways give the
+    same collisions, in the same order, with the same weights (here with many chunks: a large d̂ and an extra
+    copy of the candidate lists)."""
+    import numba
+
+    from idp.contact import compiled_barrier as cb
+    from idp.thread_choice import ThreadChoice
+
+    class Always(ThreadChoice):
+        def __init__(self, way: bool):
+            super().__init__()
+            self.way = way
+
+        def parallel(self) -> bool:
+            return self.way
+
+    x, _, model = both(scene, dhat=0.3)
+    vs = model.surface_positions(x)
+    fv, ee = model._candidates(vs, None)
+    reps = max(1, 40_000 // max(fv.shape[0] + ee.shape[0], 1))  # > 16,384 candidates: several chunks
+    fv, ee = np.tile(fv, (reps, 1)), np.tile(ee, (reps, 1))
+    sets = []
+    for way in (False, True):
+        monkeypatch.setattr(cb, "_COMPACT_THREADS", Always(way))
+        sets.append(cb.build_collision_set(vs, model._edges, model._faces, fv, ee, 0.3, model._edge_rest_len2))
+    one, every = sets
+    assert numba.get_num_threads() >= 1 and len(one) > 10
+    for name in ("verts", "kind", "local", "eps", "weight", "sqdist"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(every, name), err_msg=name)

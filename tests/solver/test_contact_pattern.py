@@ -6,6 +6,7 @@ import scipy.sparse as sp
 
 from idp.solver.assembly import FixedPatternAssembler, FreeDofMap, restrict_collision_hessian
 from idp.solver.contact_pattern import GrowingBlockPattern
+from idp.thread_choice import ThreadChoice
 
 DIM = 3
 
@@ -242,22 +243,36 @@ def test_block_scatter_on_several_threads_equals_the_serial_one(fold_limit):
     cblocks = np.einsum("mij,mkj->mik", A, A)
     results = []
     before = numba.get_num_threads()
-    for threads in (1, 2):
+    for threads, way in ((1, None), (2, True), (2, False)):
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
         try:
             pattern = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
+            if way is not None:  # the thread choice's either way, not its timing
+                pattern._scatter_threads = _Always(way)
             M = pattern.assemble_blocks(data, bv, cblocks)
             K = pattern.fold_correction
         finally:
             numba.set_num_threads(before)
         results.append((M, None if K is None else K.toarray(), pattern.growths, pattern.folds))
-    (M1, K1, g1, f1), (M2, K2, g2, f2) = results
-    assert np.array_equal(M1.indptr, M2.indptr) and np.array_equal(M1.indices, M2.indices)
-    np.testing.assert_array_equal(M1.data, M2.data)
-    assert (g1, f1) == (g2, f2) == ((1, 0) if fold_limit == 0 else (0, 1))
-    assert (K1 is None) == (K2 is None)
-    if K1 is not None:
-        np.testing.assert_array_equal(K1, K2)
+    M1, K1, g1, f1 = results[0]
+    for M2, K2, g2, f2 in results[1:]:
+        assert np.array_equal(M1.indptr, M2.indptr) and np.array_equal(M1.indices, M2.indices)
+        np.testing.assert_array_equal(M1.data, M2.data)
+        assert (g1, f1) == (g2, f2) == ((1, 0) if fold_limit == 0 else (0, 1))
+        assert (K1 is None) == (K2 is None)
+        if K1 is not None:
+            np.testing.assert_array_equal(K1, K2)
+
+
+class _Always(ThreadChoice):
+    """A thread choice that always takes one way."""
+
+    def __init__(self, parallel: bool):
+        super().__init__()
+        self._way = parallel
+
+    def parallel(self) -> bool:
+        return self._way
 
 
 def _random_collision_blocks(rng, nfv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
