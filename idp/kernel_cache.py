@@ -232,22 +232,16 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             4.0,
         ),
     ),
-    # 3D contact (either barrier): the input's crossing edge/triangle pairs (idp.contact.intersections), checked when
-    # the scene is built and, in preserve mode, by every frame's certificate
+    # 3D contact (either barrier): the crossing edge/triangle pairs (idp.contact.intersections), checked on the input
+    # when the scene is built and by every frame's certificate
     "surface3d": (
-        Kernel(_IX, "_count_overlaps", "(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1])", 0.3),
+        Kernel(_IX, "_grid", "(float64[:, ::1], int64[:, ::1], int64[:, ::1])", 1.0),
         Kernel(
             _IX,
-            "_list_pairs",
-            "(float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[:, ::1], int64[::1], int64[::1], int64[::1],"
-            " int64[::1], int64[::1], int64[::1], int64[::1])",
-            0.6,
-        ),
-        Kernel(
-            _IX,
-            "_unresolved_pairs",
-            "(float64[:, ::1], int64[:, ::1], int64[:, ::1], int64[::1], int64[::1], float64)",
-            1.0,
+            "_undecided_edge_face_pairs",
+            "(float64[:, ::1], int64[:, ::1], int64[:, ::1], float64[::1], float64, int64[::1], float64,"
+            " int64[:, ::1])",
+            1.5,
         ),
     ),
     # contact through ipctk's barrier (2D, or barrier = "ipctk"): its Hessian scattered into the Newton matrix

@@ -111,6 +111,16 @@ class Certifier:
             self._edges = np.ascontiguousarray(self.mesh.edges, dtype=np.int32)
             self._faces = np.ascontiguousarray(self.mesh.faces, dtype=np.int32)
 
+    def _has_intersections(self, vs: np.ndarray) -> bool:
+        """Whether some collision-mesh edge crosses a triangle (3D: idp's own grid and float filter with ipctk's
+        robust predicate on the pairs it leaves open, :func:`idp.contact.intersections.has_intersections`, 4.6 →
+        ≈ 1 ms at bunny_700's frames against ipctk's LBVH; 2D: ipctk's)."""
+        if self.dim != 3:
+            return bool(ipctk.has_intersections(self.mesh, vs, ipctk.LBVH()))
+        from idp.contact.intersections import has_intersections
+
+        return has_intersections(vs, self._edges, self._faces)
+
     def _min_distance(self, vs: np.ndarray) -> float:
         """Smallest surface distance among pairs closer than ``distance_query``; inf if none. 3D: the compiled
         broad phase (every pair of the collision mesh, obstacle pairs included) and exact closest-feature
@@ -165,12 +175,12 @@ class Certifier:
             elif self.preserved or self.prescribed is not None:
                 from idp.contact.intersections import intersecting_pair_keys, pairs_within
 
-                if self.preserved or ipctk.has_intersections(self.mesh, vs, ipctk.LBVH()):
+                if self.preserved or self._has_intersections(vs):
                     new = intersecting_pair_keys(x, self.surface) - self.preserved
                     n_prescribed = 0 if self.prescribed is None else pairs_within(new, self.prescribed)
                     intersection_free = n_prescribed == len(new)
             else:
-                intersection_free = not ipctk.has_intersections(self.mesh, vs, ipctk.LBVH())
+                intersection_free = not self._has_intersections(vs)
             if intersection_free:
                 min_d = self._min_distance(vs)
         n_degenerate = 0

@@ -4,10 +4,12 @@ import numpy as np
 import pytest
 
 from idp.contact.intersections import (
-    _edge_face_box_pairs,
+    _grid,
+    _undecided_edge_face_pairs,
     count_intersections,
     find_intersecting_pairs,
     find_intersecting_segments,
+    has_intersections,
     intersecting_pair_keys,
 )
 from idp.mesh.generate import polygon_circle, tet_box
@@ -114,8 +116,12 @@ def test_grid_broad_phase_finds_every_overlapping_pair_once(seed):
     f = rng.integers(0, v.shape[0], size=(180, 3))
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
     e = unique_edges(f)
-    ei, fi = _edge_face_box_pairs(np.ascontiguousarray(v), e, f)
-    got = list(zip(ei.tolist(), fi.tolist(), strict=True))
+    v, f = np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64)
+    origin, h, dims = _grid(v, e, f)
+    out = np.empty((e.shape[0] * f.shape[0], 2), np.int64)
+    # an infinite scale leaves the float filter unsure of every pair: the kernel then lists its whole broad phase
+    n = _undecided_edge_face_pairs(v, e, f, origin, h, dims, np.inf, out)
+    got = [tuple(p) for p in out[:n].tolist()]
     assert len(got) == len(set(got))  # each pair once
     assert set(got) == _brute_box_pairs(v, e, f)
 
@@ -140,3 +146,24 @@ def test_crossing_pairs_equal_the_robust_predicate_on_every_pair():
     ]
     got = find_intersecting_pairs(v, e, f).tolist()
     assert got == expected and len(expected) > 10
+    assert has_intersections(v, e, f)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_has_intersections_answers_as_the_pairs_and_as_ipctk(seed):
+    """has_intersections (the certificate's 3D test) says yes exactly when find_intersecting_pairs finds a pair, and
+    agrees with ipctk's has_intersections, on two boxes moved through touching, crossing and apart."""
+    import ipctk
+
+    rng = np.random.default_rng(seed)
+    va, fa, n = _box_surface(np.zeros(3))
+    gap = (1.0, 2.0, 2.0 + 1e-9, 2.4)[seed % 4]  # the boxes span [-1, 1]: crossing, touching, just apart, apart
+    shift = np.array([gap, 0.0, 0.0]) + rng.uniform(-0.1, 0.1, 3) * (seed >= 4)
+    vb, fb, _ = _box_surface(shift)
+    v, f = np.vstack([va, vb]), np.vstack([fa, fb + n])
+    e = unique_edges(f)
+    mesh = ipctk.CollisionMesh(v, e, f)
+    expected = bool(ipctk.has_intersections(mesh, v, ipctk.LBVH()))
+    assert has_intersections(v, e, f) == (len(find_intersecting_pairs(v, e, f)) > 0) == expected
+    if seed in (0, 3):  # (a test that both answers occur)
+        assert expected == (seed == 0)
