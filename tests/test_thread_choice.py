@@ -9,7 +9,7 @@ from idp.thread_choice import ThreadChoice
 
 
 def _many_threads() -> int:
-    return numba.config.NUMBA_NUM_THREADS
+    return int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # (set when numba loads)
 
 
 def test_it_tries_both_ways_then_keeps_the_faster_and_rechecks_the_other():
