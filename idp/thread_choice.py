@@ -28,18 +28,22 @@ __all__ = ["ThreadChoice"]
 class ThreadChoice:
     """The faster of "all threads" and "one thread" for one call site, from the times of its own calls."""
 
-    def __init__(self, trials: int = 4, recheck: int = 64, window: int = 8):
+    def __init__(self, trials: int = 4, recheck: int = 64, window: int = 8, force: bool | None = None):
         """``trials`` calls of each way first (alternating, one thread first); afterwards the way with the lower
         median seconds per unit of work over the last ``window`` calls of each, and the other way once every
-        ``recheck`` calls."""
+        ``recheck`` calls. ``force``: always all threads (True) or always one (False) instead (tests comparing the
+        two ways, measurements of one)."""
         if trials < 1 or recheck < 2 or window < 1:
             raise ValueError("trials >= 1, recheck >= 2 and window >= 1 are needed")
         self.trials, self.recheck, self.window = int(trials), int(recheck), int(window)
+        self.force = force
         self._per_work: dict[bool, list[float]] = {False: [], True: []}  # parallel? -> recent seconds per work
         self.calls = 0
 
     def parallel(self) -> bool:
         """Whether the next call runs on every thread (False whenever numba has one thread)."""
+        if self.force is not None:
+            return self.force
         if numba.get_num_threads() <= 1:
             return False
         if self.calls < 2 * self.trials:

@@ -85,6 +85,12 @@ def test_an_explicit_serial_way_is_called_instead():
     assert choice.run(5, lambda: "all", lambda: "one") == "one"
 
 
+def test_a_forced_way_is_always_taken():
+    for way in (False, True):
+        choice = ThreadChoice(force=way)
+        assert all(choice.parallel() is way for _ in range(20))
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="trials"):
         ThreadChoice(trials=0)

@@ -201,14 +201,6 @@ def test_compaction_on_one_thread_or_all_gives_the_same_set(scene, monkeypatch):
     from idp.contact import compiled_barrier as cb
     from idp.thread_choice import ThreadChoice
 
-    class Always(ThreadChoice):
-        def __init__(self, way: bool):
-            super().__init__()
-            self.way = way
-
-        def parallel(self) -> bool:
-            return self.way
-
     x, _, model = both(scene, dhat=0.3)
     vs = model.surface_positions(x)
     fv, ee = model._candidates(vs, None)
@@ -216,7 +208,7 @@ def test_compaction_on_one_thread_or_all_gives_the_same_set(scene, monkeypatch):
     fv, ee = np.tile(fv, (reps, 1)), np.tile(ee, (reps, 1))
     sets = []
     for way in (False, True):
-        monkeypatch.setattr(cb, "_COMPACT_THREADS", Always(way))
+        monkeypatch.setattr(cb, "_COMPACT_THREADS", ThreadChoice(force=way))
         sets.append(cb.build_collision_set(vs, model._edges, model._faces, fv, ee, 0.3, model._edge_rest_len2))
     one, every = sets
     assert numba.get_num_threads() >= 1 and len(one) > 10

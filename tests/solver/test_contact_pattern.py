@@ -248,7 +248,7 @@ def test_block_scatter_on_several_threads_equals_the_serial_one(fold_limit):
         try:
             pattern = GrowingBlockPattern(asm.layout, fold_limit=fold_limit)
             if way is not None:  # the thread choice's either way, not its timing
-                pattern._scatter_threads = _Always(way)
+                pattern._scatter_threads = ThreadChoice(force=way)
             M = pattern.assemble_blocks(data, bv, cblocks)
             K = pattern.fold_correction
         finally:
@@ -262,17 +262,6 @@ def test_block_scatter_on_several_threads_equals_the_serial_one(fold_limit):
         assert (K1 is None) == (K2 is None)
         if K1 is not None:
             np.testing.assert_array_equal(K1, K2)
-
-
-class _Always(ThreadChoice):
-    """A thread choice that always takes one way."""
-
-    def __init__(self, parallel: bool):
-        super().__init__()
-        self._way = parallel
-
-    def parallel(self) -> bool:
-        return self._way
 
 
 def _random_collision_blocks(rng, nfv: int, m: int) -> tuple[np.ndarray, np.ndarray]:
