@@ -239,8 +239,8 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
         Kernel(
             _IX,
             "_undecided_edge_face_pairs",
-            "(float64[:, ::1], int64[:, ::1], int64[:, ::1], float64[::1], float64, int64[::1], float64,"
-            " int64[:, ::1])",
+            "(float64[:, ::1], int64[:, ::1], int64[:, ::1], float64[::1], float64, int64[::1], float64[:, ::1],"
+            " float64[:, ::1], float64, int64[:, ::1])",
             1.5,
         ),
     ),

@@ -63,9 +63,10 @@ def _same(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _grid(v, e, f):  # pragma: no cover - compiled
-    """(origin, cell size h, dims) of the uniform grid for the edge/face boxes: cells about twice the median edge box,
-    at most four cells per box, coarser while the cell lists would hold more than 32 entries per box (boxes far larger
-    than most, like the long spokes of a fan, are listed under many cells)."""
+    """(origin, cell size h, dims, lo, hi) of the uniform grid for the edge/face boxes: cells about twice the median
+    edge box, at most four cells per box, coarser while the cell lists would hold more than 32 entries per box (boxes
+    far larger than most, like the long spokes of a fan, are listed under many cells); ``lo``, ``hi`` (ne + nf, 3):
+    the boxes themselves, the edges' first, for :func:`_undecided_edge_face_pairs`."""
     ne, nf = e.shape[0], f.shape[0]
     lo = np.empty((ne + nf, 3))
     hi = np.empty((ne + nf, 3))
@@ -105,7 +106,7 @@ def _grid(v, e, f):  # pragma: no cover - compiled
                 n *= _cell(hi[k, ax], origin[ax], h, dims[ax]) - _cell(lo[k, ax], origin[ax], h, dims[ax]) + 1
             listed += n
         if listed <= 32 * (ne + nf) or dims[0] * dims[1] * dims[2] == 1:
-            return origin, h, dims
+            return origin, h, dims, lo, hi
         h *= 2.0
 
 
@@ -116,30 +117,26 @@ def _cell(x, origin, h, size):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _undecided_edge_face_pairs(v, e, f, origin, h, dims, scale, out):  # pragma: no cover - compiled
-    """Rows [edge, face] of every edge/face pair whose closed bounding boxes overlap, that share no vertex and that
-    the float64 orientation filter cannot prove disjoint (:func:`_pair_undecided`), written to ``out`` up to its
-    length; returns how many there are (the caller runs again with a larger ``out`` when that is more).
+def _undecided_edge_face_pairs(v, e, f, origin, h, dims, lo, hi, scale, out):  # pragma: no cover - compiled
+    """Rows [edge, face] of every edge/face pair whose closed bounding boxes (``lo``, ``hi`` from :func:`_grid`)
+    overlap, that share no vertex and that the float64 orientation filter cannot prove disjoint
+    (:func:`_pair_undecided`), written to ``out`` up to its length; returns how many there are (the caller runs again
+    with a larger ``out`` when that is more).
 
     The faces are listed under every grid cell their box overlaps (a counting sort, in increasing face id); each edge
     visits the cells its box overlaps, and a pair is looked at only by the one cell that holds the low corner of the
     two boxes' intersection (cell indices are monotone in the coordinate, so that cell is each box's first cell or
     beyond, and both boxes are listed there): each pair exactly once. Box ends are coordinates (min and max are
     exact), so touching boxes are never lost to rounding."""
-    nf = f.shape[0]
+    ne, nf = e.shape[0], f.shape[0]
     ncell = dims[0] * dims[1] * dims[2]
-    flo = np.empty((nf, 3))
-    fhi = np.empty((nf, 3))
     first = np.empty((nf, 3), np.int64)
     last = np.empty((nf, 3), np.int64)
     start = np.zeros(ncell + 1, np.int64)
     for j in range(nf):
         for ax in range(3):
-            a, b, c = v[f[j, 0], ax], v[f[j, 1], ax], v[f[j, 2], ax]
-            flo[j, ax] = min(a, min(b, c))
-            fhi[j, ax] = max(a, max(b, c))
-            first[j, ax] = _cell(flo[j, ax], origin[ax], h, dims[ax])
-            last[j, ax] = _cell(fhi[j, ax], origin[ax], h, dims[ax])
+            first[j, ax] = _cell(lo[ne + j, ax], origin[ax], h, dims[ax])
+            last[j, ax] = _cell(hi[ne + j, ax], origin[ax], h, dims[ax])
         for ix in range(first[j, 0], last[j, 0] + 1):
             for iy in range(first[j, 1], last[j, 1] + 1):
                 for iz in range(first[j, 2], last[j, 2] + 1):
@@ -160,8 +157,8 @@ def _undecided_edge_face_pairs(v, e, f, origin, h, dims, scale, out):  # pragma:
                     k = at[q]
                     items[k] = j
                     for ax in range(3):
-                        box[k, ax] = flo[j, ax]
-                        box[k, 3 + ax] = fhi[j, ax]
+                        box[k, ax] = lo[ne + j, ax]
+                        box[k, 3 + ax] = hi[ne + j, ax]
                         ints[k, ax] = first[j, ax]
                         ints[k, 3 + ax] = f[j, ax]
                     at[q] += 1
@@ -169,11 +166,10 @@ def _undecided_edge_face_pairs(v, e, f, origin, h, dims, scale, out):  # pragma:
         widest = max(widest, start[q + 1] - start[q])
     near = np.empty(widest, np.int64)
     found = 0
-    for i in range(e.shape[0]):
+    for i in range(ne):
         p, r = e[i, 0], e[i, 1]
-        lo0, hi0 = min(v[p, 0], v[r, 0]), max(v[p, 0], v[r, 0])
-        lo1, hi1 = min(v[p, 1], v[r, 1]), max(v[p, 1], v[r, 1])
-        lo2, hi2 = min(v[p, 2], v[r, 2]), max(v[p, 2], v[r, 2])
+        lo0, lo1, lo2 = lo[i, 0], lo[i, 1], lo[i, 2]
+        hi0, hi1, hi2 = hi[i, 0], hi[i, 1], hi[i, 2]
         c0, d0 = _cell(lo0, origin[0], h, dims[0]), _cell(hi0, origin[0], h, dims[0])
         c1, d1 = _cell(lo1, origin[1], h, dims[1]), _cell(hi1, origin[1], h, dims[1])
         c2, d2 = _cell(lo2, origin[2], h, dims[2]), _cell(hi2, origin[2], h, dims[2])
@@ -303,13 +299,13 @@ def _pair_undecided(p, q, a, b, c, scale):  # pragma: no cover - compiled
 def _undecided(v: np.ndarray, e: np.ndarray, f: np.ndarray) -> np.ndarray:
     """(k, 2) int64 [edge, face] of the box-overlapping pairs sharing no vertex that the float filter leaves open,
     in edge order (faces of one edge in cell order)."""
-    origin, h, dims = _grid(v, e, f)
+    origin, h, dims, lo, hi = _grid(v, e, f)
     scale = float(np.abs(v).max())
     out = np.empty((max(64, e.shape[0] // 8), 2), np.int64)
-    n = _undecided_edge_face_pairs(v, e, f, origin, h, dims, scale, out)
+    n = _undecided_edge_face_pairs(v, e, f, origin, h, dims, lo, hi, scale, out)
     if n > out.shape[0]:  # more than room for: once more with room for all
         out = np.empty((n, 2), np.int64)
-        _undecided_edge_face_pairs(v, e, f, origin, h, dims, scale, out)
+        _undecided_edge_face_pairs(v, e, f, origin, h, dims, lo, hi, scale, out)
     return out[:n]
 
 

@@ -117,10 +117,10 @@ def test_grid_broad_phase_finds_every_overlapping_pair_once(seed):
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
     e = unique_edges(f)
     v, f = np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64)
-    origin, h, dims = _grid(v, e, f)
+    origin, h, dims, lo, hi = _grid(v, e, f)
     out = np.empty((e.shape[0] * f.shape[0], 2), np.int64)
     # an infinite scale leaves the float filter unsure of every pair: the kernel then lists its whole broad phase
-    n = _undecided_edge_face_pairs(v, e, f, origin, h, dims, np.inf, out)
+    n = _undecided_edge_face_pairs(v, e, f, origin, h, dims, lo, hi, np.inf, out)
     got = [tuple(p) for p in out[:n].tolist()]
     assert len(got) == len(set(got))  # each pair once
     assert set(got) == _brute_box_pairs(v, e, f)
