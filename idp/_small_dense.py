@@ -5,10 +5,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from idp._leaf import leaf_njit
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def symmetric_eigen_jacobi(S: np.ndarray, d: int, Q: np.ndarray, lam: np.ndarray) -> None:
     """Eigen-decomposition of a symmetric d x d matrix by cyclic Jacobi: S = Q diag(lam) Q^T.
 

@@ -82,6 +82,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from idp._leaf import leaf_njit
+
 # Cell edge = _CELL_SCALE * (mean largest box side of the dynamic edges) + inflation
 # (bunny_3376, 2 threads: 0.8 -> 2.50 ms, 1.0 -> 2.31, 1.2 -> 2.18, 1.4 -> 2.20, 1.7 -> 2.46, 2.0 -> 3.83).
 _CELL_SCALE = 1.2
@@ -105,7 +107,7 @@ _EMPTY = np.empty((0, 2), dtype=np.int32)
 NUM_KINDS = 12
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _sweep_reach(mv, g):  # pragma: no cover
     """How much longer than its start box primitive g's sweep box is on its worst axis."""
     r = 0.0
@@ -114,7 +116,7 @@ def _sweep_reach(mv, g):  # pragma: no cover
     return r
 
 
-@njit(cache=True)
+@leaf_njit()
 def _boxes_chunk(t, nt, V0, V1, sweep, E, F, nd, still, infl, lo, H, kind, grp, ri, ext):  # pragma: no cover
     """Chunk t of nt of :func:`_boxes` (plain: see :func:`_pairs_chunk`)."""
     nv = V0.shape[0]
@@ -249,7 +251,7 @@ def _boxes(V0, V1, sweep, E, F, nd, still, infl, nt):  # pragma: no cover
     return lo, H, kind, grp, ri, ext
 
 
-@njit(cache=True)
+@leaf_njit()
 def _moving_boxes_chunk(t, nt, V0, V1, ri, kind, infl, mv, stat):  # pragma: no cover
     """Chunk t of nt of :func:`_moving_boxes` (plain: see :func:`_pairs_chunk`)."""
     n = ri.shape[0]
@@ -360,7 +362,7 @@ def _offsets(cnt):  # pragma: no cover
     return start
 
 
-@njit(cache=True)
+@leaf_njit()
 def _fill_chunk(t, nt, cmin, cmax, order, pos, dims, items):  # pragma: no cover
     """Chunk t of nt of :func:`_fill` (plain: see :func:`_pairs_chunk`)."""
     n = order.size
@@ -431,7 +433,7 @@ def _chunks(start, k, spare):  # pragma: no cover
     return chunks, big, at
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, mj):  # pragma: no cover
     """Branch-free test of a cell's entry j against a box (lo l, inflated hi h, mask mi): the boxes overlap, this
     cell owns the pair (the low corner of their cell ranges, bits 0-2 of the masks) and not both are in the group
@@ -448,7 +450,7 @@ def _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, mj):  # pragma: no cover
     )
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1):  # pragma: no cover
     """Branch-free: the edge with box (l, h), mask mi and vertices a0, a1 and the cell's edge entry j meet
     (:func:`_boxes_meet`) and share no vertex."""
@@ -456,7 +458,7 @@ def _edge_pair(box, vt, msk, j, l0, l1, l2, h0, h1, h2, mi, a0, a1):  # pragma: 
     return _boxes_meet(box, j, l0, l1, l2, h0, h1, h2, mi, msk[j]) & (a0 != b0) & (a0 != b1) & (a1 != b0) & (a1 != b1)
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _moving_boxes_meet(mb, i, j, pad):  # pragma: no cover
     """Whether rows i and j of ``mb`` (a cell's scratch copy, or the moving boxes themselves) can overlap (inflated)
     at one time t in [0, 1] of the sweep: the moving boxes [lo0 + t dmin, hi0 + infl + t dmax] (``mb`` rows: lo0,
@@ -489,7 +491,7 @@ def _moving_boxes_meet(mb, i, j, pad):  # pragma: no cover
     return tlo <= thi
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _face_vertex_pairs(i, box, vt, msk, r0, r1, r2, r3, out_fv, pf, fv_end, mb, moving, pad):  # pragma: no cover
     """Test face entry i of a cell against its vertex entries [r0, r1) and [r2, r3); returns the next output row.
     ``moving``: a sweep, whose pairs must also pass :func:`_moving_boxes_meet`."""
@@ -746,7 +748,7 @@ def _grid_pairs(prims, order, org, h, grid):  # pragma: no cover
     return _pack(out_f, f_at, n_f), _pack(out_e, e_at, n_e)
 
 
-@njit(cache=True, inline="always")
+@leaf_njit(inline="always")
 def _cross_pair(lo, H, kind, ri, mv, pad, cmin_l, cmin_s, g, s, cx, cy, cz):  # pragma: no cover
     """0 (no pair), 1 (face-vertex) or 2 (edge-edge) for long primitive g and short primitive s met in cell
     (cx, cy, cz): the pair's kinds match, not both are static, not both in the group, they share no vertex, their

@@ -105,7 +105,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from idp._leaf import leaf_njit
 
 # --------------------------------------------------------------------------------------
 # constants and tables
@@ -203,7 +204,7 @@ _MB = np.array([0.0, 0.0, -1.0, 1.0])
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _closest(kind, X):
     """(d, lam0, lam1, w, J columns a/b, G^{-1} entries) of the stencil, all as scalars.
 
@@ -295,7 +296,7 @@ def _closest(kind, X):
     )
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _mirror_upper(H, m):
     for i in range(m):
         for j in range(i + 1, m):
@@ -307,7 +308,7 @@ def _mirror_upper(H, m):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def edge_cross(X, i0, i1, j0, j1):
     """a = X[i1] − X[i0], b = X[j1] − X[j0] and n = a × b, as nine scalars (a, b, n)."""
     a0 = X[i1, 0] - X[i0, 0]
@@ -322,7 +323,7 @@ def edge_cross(X, i0, i1, j0, j1):
     return a0, a1, a2, b0, b1, b2, n0, n1, n2
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def sq_distance(kind, X):
     """Squared distance of the stencil X (rows in stencil order) of the given kind."""
     if kind == PP:
@@ -352,7 +353,7 @@ def sq_distance(kind, X):
     return s * s / (n0 * n0 + n1 * n1 + n2 * n2)
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def sq_distance_gradient(kind, X, g):
     """Write the gradient (length 3k, vertex-major) into g[:3k]; return the squared distance."""
     d, l0, l1, w0, w1, w2, _a0, _a1, _a2, _b0, _b1, _b2, _g0, _g1, _g2 = _closest(kind, X)
@@ -365,7 +366,7 @@ def sq_distance_gradient(kind, X, g):
     return d
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def sq_distance_hessian(kind, X, g, H):
     """Gradient into g[:3k], exactly symmetric Hessian into H[:3k, :3k]; return the squared distance.
 
@@ -419,7 +420,7 @@ def sq_distance_hessian(kind, X, g, H):
     return d
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def gather_stencil(local_ids, row, Y, X):
     """X[i] = Y[local_ids[row, i]] for the non-negative ids of that row (of PT_LOCAL / EE_LOCAL or a collision
     set's local ids); return the count. The table and its row, not the row view ``local_ids[row]``: a view costs
@@ -443,7 +444,7 @@ def gather_stencil(local_ids, row, Y, X):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _edge_slab(X, ip, ii, ij, n0, n1, n2):
     """(s, |e|^2, h) of row ip w.r.t. the edge of rows ii -> ij of the stencil X: s = (p-ti).e,
     h = (p-ti).(e x n) (> 0: outer side)."""
@@ -459,7 +460,7 @@ def _edge_slab(X, ip, ii, ij, n0, n1, n2):
     return s, ee, h
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _sq_dist_points(p, q):
     a = p[0] - q[0]
     b = p[1] - q[1]
@@ -467,7 +468,7 @@ def _sq_dist_points(p, q):
     return a * a + b * b + c * c
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _sq_dist_rows(X, i, j):
     """Squared distance between rows i and j of X."""
     a = X[i, 0] - X[j, 0]
@@ -476,7 +477,7 @@ def _sq_dist_rows(X, i, j):
     return a * a + b * b + c * c
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _degenerate_triangle_type(X):
     """Collinear triangle (rows 1–3 of the stencil X, the point row 0): closest of the three segments
     (point-segment classification)."""
@@ -509,7 +510,7 @@ def _degenerate_triangle_type(X):
     return best_type
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def point_triangle_type(X):
     """Closest feature of the triangle (rows 1, 2, 3 of the (4, 3) stencil X: t0, t1, t2) to the point (row 0),
     as ipctk.PointTriangleDistanceType. The stencil is read in place: row views (``X[0]``) passed to a call cost
@@ -556,7 +557,7 @@ def point_triangle_type(X):
     return P_T2
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _edge_edge_parallel_type(X):
     """Parallel edges (rows 0, 1: edge A; rows 2, 3: edge B of the stencil X): project eb0, eb1 onto edge A
     (parameters alpha, beta; A = [0, 1])."""
@@ -578,7 +579,7 @@ def _edge_edge_parallel_type(X):
     return EA0_EB if alpha < 0.0 else EA1_EB
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def edge_edge_type(X):
     """Closest feature pair of the segments of rows (0, 1) and (2, 3) of the (4, 3) stencil X (ea0, ea1, eb0,
     eb1), as ipctk.EdgeEdgeDistanceType; the stencil is read in place (see :func:`point_triangle_type`)."""
@@ -647,7 +648,7 @@ def edge_edge_type(X):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def ee_mollifier_threshold(ea0_rest, ea1_rest, eb0_rest, eb1_rest):
     """eps_x = 1e-3 |ea1 - ea0|^2 |eb1 - eb0|^2 (rest positions)."""
     la = _sq_dist_points(ea1_rest, ea0_rest)
@@ -655,7 +656,7 @@ def ee_mollifier_threshold(ea0_rest, ea1_rest, eb0_rest, eb1_rest):
     return EE_MOLLIFIER_FACTOR * la * lb
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def ee_mollifier(X, eps_x):
     """m(c), c = |(ea1 - ea0) x (eb1 - eb0)|^2; X rows ea0, ea1, eb0, eb1."""
     _a0, _a1, _a2, _b0, _b1, _b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
@@ -666,7 +667,7 @@ def ee_mollifier(X, eps_x):
     return 1.0
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def ee_mollifier_gradient(X, eps_x, g):
     """Gradient of m into g[:12] (zero when c >= eps_x); return m."""
     a0, a1, a2, b0, b1, b2, n0, n1, n2 = edge_cross(X, 0, 1, 2, 3)
@@ -691,7 +692,7 @@ def ee_mollifier_gradient(X, eps_x, g):
     return (2.0 - q) * q
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def ee_mollifier_hessian(X, eps_x, g, H):
     """Gradient into g[:12], Hessian into H[:12, :12] (zero when c >= eps_x); return m.
 
@@ -765,7 +766,7 @@ def ee_mollifier_hessian(X, eps_x, g, H):
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def barrier(d, dhat2):
     """b(d) = -(d - dhat2)^2 ln(d / dhat2) for 0 < d < dhat2; 0 for d >= dhat2; +inf for d <= 0."""
     if d <= 0.0:
@@ -776,7 +777,7 @@ def barrier(d, dhat2):
     return -t * t * math.log(d / dhat2)
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def barrier_first_derivative(d, dhat2):
     """b'(d) = (dhat2 - d) (2 ln(d / dhat2) - dhat2 / d + 1) on (0, dhat2), else 0."""
     if d <= 0.0 or d >= dhat2:
@@ -784,7 +785,7 @@ def barrier_first_derivative(d, dhat2):
     return (dhat2 - d) * (2.0 * math.log(d / dhat2) - dhat2 / d + 1.0)
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def barrier_second_derivative(d, dhat2):
     """b''(d) = (dhat2 / d + 2) dhat2 / d - 2 ln(d / dhat2) - 3 on (0, dhat2), else 0."""
     if d <= 0.0 or d >= dhat2:

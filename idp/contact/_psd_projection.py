@@ -47,8 +47,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from idp._leaf import leaf_njit
 from idp._small_dense import symmetric_eigen_jacobi
 
 #: Largest supported block size (columns of ``work``).
@@ -84,7 +84,7 @@ PATH_GENERAL = 2  # eigenvalue path (3 x 3 register path, or tridiagonal QR)
 PATH_JACOBI = 3  # Jacobi fallback after the QR iteration cap
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _ldlt_is_psd(A: np.ndarray, k: int, tol: float) -> bool:
     """PSD test by LDLᵀ on the upper triangle of A[:k, :k] (destroyed; lower ignored).
 
@@ -139,7 +139,7 @@ def _ldlt_is_psd(A: np.ndarray, k: int, tol: float) -> bool:
     return True
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _tridiagonalize(work: np.ndarray, k: int) -> None:
     """Householder reduction of the symmetric block work[:k, :k] to T (diag in _D, off in _E).
 
@@ -194,7 +194,7 @@ def _tridiagonalize(work: np.ndarray, k: int) -> None:
     work[_D, k - 1] = work[k - 1, k - 1]
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _tridiagonal_qr(work: np.ndarray, k: int) -> int:
     """Eigenvalues of T (in place in work[_D]) by implicit QR with Wilkinson shifts.
 
@@ -303,7 +303,7 @@ def _tridiagonal_qr(work: np.ndarray, k: int) -> int:
     return nit
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _eigenvectors(work: np.ndarray, k: int, nit: int, nv: int) -> None:
     """Rows 0..nv-1 of work <- eigenvectors (length k) for the eigenvalue indices work[_E, :nv].
 
@@ -394,7 +394,7 @@ def _eigenvectors(work: np.ndarray, k: int, nit: int, nv: int) -> None:
             work[q, i] = work[_VEC + i, q]
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _jacobi_project(H: np.ndarray, k: int, work: np.ndarray, scale: float) -> None:
     """Fallback: cyclic Jacobi on the scaled block (sweep cap), H <- Σ max(λ,0) u uᵀ."""
     inv = 1.0 / scale
@@ -415,7 +415,7 @@ def _jacobi_project(H: np.ndarray, k: int, work: np.ndarray, scale: float) -> No
             H[j, i] = acc
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _rot2(a: float, b: float, d: float) -> tuple[float, float]:
     """(c, s) with J [[a, b], [b, d]] Jᵀ diagonal, J = [[c, s], [-s, c]] (b != 0, |angle| <= 45°).
 
@@ -426,14 +426,14 @@ def _rot2(a: float, b: float, d: float) -> tuple[float, float]:
     return c, t * c
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _negligible(e: float, d0: float, d1: float) -> bool:
     """Off-diagonal e of a scaled tridiagonal is negligible next to its diagonal neighbours."""
     ae = abs(e)
     return ae <= _EPS * (abs(d0) + abs(d1)) or ae <= 1e-16
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def _project3(H: np.ndarray, work: np.ndarray, scale: float) -> bool:
     """3 x 3 general path in registers: one Givens rotation to tridiagonal form, implicit QR with
     Wilkinson shifts (a final 2 x 2 block is diagonalised directly), the rotation product W
@@ -575,7 +575,7 @@ def _project3(H: np.ndarray, work: np.ndarray, scale: float) -> bool:
     return True
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@leaf_njit(error_model="numpy", fastmath={"contract"})
 def project_psd(H: np.ndarray, k: int, work: np.ndarray) -> int:
     """In place: H[:k,:k] <- V max(Λ,0) Vᵀ where H[:k,:k] = V Λ Vᵀ (symmetric input; output exactly symmetric).
 

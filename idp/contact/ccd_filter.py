@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from idp._leaf import leaf_njit
 from idp.contact._distance_kernels import (
     EE_KIND,
     EE_LOCAL,
@@ -61,7 +62,7 @@ FIRST_BATCH = 256
 _CHUNK = 512
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _distance(X, S, point_triangle):  # pragma: no cover - compiled
     if point_triangle:
         t = point_triangle_type(X)
@@ -162,7 +163,7 @@ def _bounds_range(  # pragma: no cover - compiled
             first2[i] = _advance(X0, D, X, S, pt, t, target, slack, m, advances, 1.0)
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _advance(X0, D, X, S, pt, t, target, slack, m, advances, limit):  # pragma: no cover - compiled
     """Conservative advancement of one pair (start positions ``X0``, moves ``D``; X, S scratch, all (4, 3) and the
     calling thread's own) from fraction t, where its gap is known to stay above ``target`` on [0, t]: at most

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from idp._leaf import leaf_njit
 from idp.contact._distance_kernels import (
     EE_KIND,
     EE_LOCAL,
@@ -68,7 +69,7 @@ GRAIN_CLASSIFY, GRAIN_VALUES, GRAIN_GRADIENTS, GRAIN_HESSIANS = 4096, 4096, 2048
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _put_row(X, r, V, v):  # pragma: no cover - compiled
     """X[r] = V[v] for 3-vectors, element by element: the array assignment ``X[i] = V[v]`` compiles numba's
     shape-mismatch error path (string formatting, about 2 s of compile time in every process that compiles it),
@@ -347,7 +348,7 @@ def build_collision_set(
 # --------------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _gather(V, verts, local, c, X, S):  # pragma: no cover - compiled
     """X ← the collision's vertices (returns their count n), S ← its distance stencil (returns k)."""
     n = 0

@@ -25,6 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
+from idp._leaf import leaf_njit
 from idp.errors import MeshError
 
 # Relative slack on the float64 orientation determinants: anything within it is "unsure"
@@ -110,7 +111,7 @@ def _grid(v, e, f):  # pragma: no cover - compiled
         h *= 2.0
 
 
-@njit(cache=True)
+@leaf_njit()
 def _cell(x, origin, h, size):  # pragma: no cover - compiled
     """Grid cell of coordinate x on one axis, clipped to [0, size)."""
     return min(max(np.int64(math.floor((x - origin) / h)), np.int64(0)), size - 1)
@@ -226,7 +227,7 @@ def _undecided_edge_face_pairs(v, e, f, origin, h, dims, lo, hi, scale, out):  #
     return found
 
 
-@njit(cache=True)
+@leaf_njit()
 def _orient3(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2, scale):  # pragma: no cover - compiled
     """Sign of orient3d(a, b, c, d) = det[b-a, c-a, d-a]; 0 where unsure. Coordinates as scalars: array arguments
     would cost numba two atomic reference-count operations each per call."""
@@ -242,7 +243,7 @@ def _orient3(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2, scale):  # pragma: 
     return 1 if det > bound else (-1 if det < -bound else 0)
 
 
-@njit(cache=True)
+@leaf_njit()
 def _orient2(a0, a1, b0, b1, c0, c1, scale):  # pragma: no cover - compiled
     """Sign of orient2d(a, b, c) = det[b-a, c-a]; 0 where unsure (as ``_sign2``, with 1-norms as ``_orient3``)."""
     u0, u1, v0, v1 = b0 - a0, b1 - a1, c0 - a0, c1 - a1
@@ -252,7 +253,7 @@ def _orient2(a0, a1, b0, b1, c0, c1, scale):  # pragma: no cover - compiled
     return 1 if det > bound else (-1 if det < -bound else 0)
 
 
-@njit(cache=True)
+@leaf_njit()
 def _pair_undecided(p, q, a, b, c, scale):  # pragma: no cover - compiled
     """Whether the float64 orientation tests cannot prove segment (p, q) and triangle (a, b, c) disjoint (points as
     3-tuples; the robust predicate decides those). Both endpoints strictly on one side of the triangle's plane:

@@ -28,6 +28,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from idp._leaf import leaf_njit
 from idp.contact._psd_projection import WORK_ROWS, project_psd
 from idp.threaded import run_in_parts
 
@@ -35,7 +36,7 @@ from idp.threaded import run_in_parts
 _SEL = np.array([[-1.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 1.0]])
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _angle(x: np.ndarray, h0: int, h1: int, h2: int, h3: int) -> float:
     """Signed dihedral angle θ of one hinge (see the module docstring)."""
     e0 = x[h1, 0] - x[h0, 0]
@@ -225,7 +226,7 @@ def _bending_chunk(
             project_psd(H, np.int64(12), work)  # not a literal 12: numba would compile a project_psd of its own
 
 
-@njit(cache=True)
+@leaf_njit()
 def _lift_hinge_block(Ht: np.ndarray, H: np.ndarray) -> None:  # pragma: no cover - compiled
     """The 12x12 vertex block H of a 9x9 block Ht in (e, a, b) = (x1, x2, x3) − x0: x1, x2, x3 take Ht, x0 minus
     the sum over the u-blocks."""

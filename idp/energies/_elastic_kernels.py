@@ -45,6 +45,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from idp._leaf import leaf_njit
 from idp._small_dense import symmetric_eigen_jacobi
 from idp.energies._pnorm_kernels import power_tail, rest_value, sigma_gradient
 from idp.threaded import run_in_parts
@@ -68,7 +69,7 @@ _SQRT_HALF = 1.0 / math.sqrt(2.0)
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _det(M: np.ndarray, d: int) -> float:
     """Determinant of the leading d x d block."""
     if d == 2:
@@ -80,7 +81,7 @@ def _det(M: np.ndarray, d: int) -> float:
     )
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _inverse(M: np.ndarray, d: int, J: float, out: np.ndarray) -> None:
     """out = M^{-1} via the adjugate (J = det M, nonzero)."""
     s = 1.0 / J
@@ -101,7 +102,7 @@ def _inverse(M: np.ndarray, d: int, J: float, out: np.ndarray) -> None:
     out[2, 2] = (M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]) * s
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.ndarray, A: np.ndarray) -> None:
     """F = U diag(sig) V^T with det U = det V = +1, |sig| descending, sign(sig[d-1]) = sign(det F).
 
@@ -216,7 +217,7 @@ def _rotation_svd(F: np.ndarray, d: int, U: np.ndarray, sig: np.ndarray, V: np.n
     sig[2] = U[0, 2] * A[0, 2] + U[1, 2] * A[1, 2] + U[2, 2] * A[2, 2]
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _sigma_eigensystem(
     model: int,
     a: float,
@@ -288,7 +289,7 @@ def _sigma_eigensystem(
                     twist[i, j] = w2 * (1.0 - (si * si - si * sj + sj * sj) / p3)
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _is_pd(S: np.ndarray, d: int) -> bool:
     """Symmetric d x d S positive definite (all leading principal minors > 0)."""
     if not (S[0, 0] > 0.0):
@@ -301,7 +302,7 @@ def _is_pd(S: np.ndarray, d: int) -> bool:
     return _det(S, d) > 0.0  # d (= 3 here), not a literal 3: one compiled _det serves every caller
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _add_mode(H: np.ndarray, g: np.ndarray, coef: float, k: int) -> None:
     """H[upper] += coef g g^T (upper triangle only)."""
     for i in range(k):
@@ -312,7 +313,7 @@ def _add_mode(H: np.ndarray, g: np.ndarray, coef: float, k: int) -> None:
             H[i, j] += gi * g[j]
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
     """g = dF/dx^T : P for P already multiplied by Dm^{-T} (columns -> nodes 1..d, node 0 = -sum)."""
     for r in range(d):
@@ -323,7 +324,7 @@ def _pull_back(P: np.ndarray, d: int, g: np.ndarray) -> None:
         g[r] = -acc
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def _hessian3(
     U, V, S, flip, twist, dm_inv, t, v, project, Ya, Sp, Q, lamS, L, R, Hr, hess_out, o
 ) -> None:  # pragma: no cover

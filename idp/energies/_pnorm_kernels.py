@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from idp._leaf import leaf_njit
 
 #: ln of the largest value of ρ^p evaluated exactly; beyond it ρ^p continues by its quadratic Taylor polynomial.
 LOG_CAP = 230.0
@@ -34,7 +34,7 @@ NEO_HOOKEAN = 0
 SYMMETRIC_DIRICHLET = 1
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def rest_value(model: int, a: float, d: int) -> float:
     """Ψ̂(I) of the unshifted base distortion: SD (a = weight w) 2 d w; NH (a = μ) μ d / 2."""
     if model == SYMMETRIC_DIRICHLET:
@@ -42,7 +42,7 @@ def rest_value(model: int, a: float, d: int) -> float:
     return 0.5 * d * a
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def power_tail(rho: float, p: float) -> tuple[float, float, float]:
     """(g, g', g'') of g(ρ) = ρ^p, continued by its second-order Taylor polynomial beyond ρ_c = e^{LOG_CAP/p}."""
     lrc = LOG_CAP / p
@@ -57,7 +57,7 @@ def power_tail(rho: float, p: float) -> tuple[float, float, float]:
     return G + G1 * u + 0.5 * G2 * u * u, G1 + G2 * u, G2
 
 
-@njit(cache=True, error_model="numpy")
+@leaf_njit(error_model="numpy")
 def sigma_gradient(model: int, a: float, b: float, sig, lnJ: float, d: int, out) -> None:
     """out[i] = ∂Ψ/∂σ_i of the base distortion: SD 2w(σ_i − σ_i⁻³); NH μσ_i − (μ − λ ln J)/σ_i."""
     if model == SYMMETRIC_DIRICHLET:

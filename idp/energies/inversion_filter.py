@@ -13,15 +13,16 @@ import math
 import numpy as np
 from numba import njit
 
+from idp._leaf import leaf_njit
 from idp.threaded import run_in_parts
 
 
-@njit(cache=True)
+@leaf_njit()
 def _cubic(c3: float, c2: float, c1: float, c0: float, s: float) -> float:
     return ((c3 * s + c2) * s + c1) * s + c0
 
 
-@njit(cache=True)
+@leaf_njit()
 def _first_root(c3: float, c2: float, c1: float, c0: float) -> float:
     """Largest a in (0, 1] with f(s) = c3 s^3 + c2 s^2 + c1 s + c0 > 0 on [0, a) (c0 > 0).
 
@@ -119,7 +120,7 @@ def _filter_kernel(
         alpha[t] = _first_root(c3 * inv, c2 * inv, c1 * inv, 1.0 - eta)
 
 
-@njit(cache=True)
+@leaf_njit()
 def _det3(C0: np.ndarray, C1: np.ndarray, C2: np.ndarray) -> float:
     """det of the 3x3 matrix whose columns 0, 1, 2 come from C0, C1, C2 respectively."""
     return (
