@@ -201,7 +201,8 @@ class GrowingBlockPattern:
         self.stale_factor = float(stale_factor)
         self.fold_limit = max(64, base.nfv // 16) if fold_limit is None else int(fold_limit)
         self.folds = 0
-        self.fold_correction: sp.csr_matrix | None = None  # exact − folded matrix after a fold
+        self._correction: tuple | None = None  # exact − folded matrix after a fold, as (values, rows, cols, n) ...
+        self._correction_matrix: sp.csr_matrix | None = None  # ... and as a matrix once asked for
         self._folded: tuple | None = None  # (folded values, folded vertex-pair keys) for exact_matrix()
         self.extra = np.zeros(0, dtype=np.int64)  # vertex-pair keys outside the base pattern
         self.layout = base
@@ -215,7 +216,23 @@ class GrowingBlockPattern:
     @property
     def last_folded(self) -> bool:
         """Whether the last assembled matrix is a folded majorant (``fold_correction`` holds exact − it)."""
-        return self.fold_correction is not None
+        return self._correction is not None
+
+    @property
+    def fold_correction(self) -> sp.csr_matrix | None:
+        """Exact − folded matrix of the last assembly (None when it was not folded), built when first asked for:
+        only the exact direction at a folded iterate that looks converged needs it (bunny_700: building it at
+        each of 163 folds took 0.07 s of a 6 s run)."""
+        if self._correction is not None and self._correction_matrix is None:
+            vals, rows, cols, n = self._correction
+            self._correction_matrix = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+        return self._correction_matrix
+
+    @fold_correction.setter
+    def fold_correction(self, value: None) -> None:
+        if value is not None:
+            raise ValueError("fold_correction is set by a fold only")
+        self._correction = self._correction_matrix = None
 
     def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
         L = self.layout
@@ -298,10 +315,13 @@ class GrowingBlockPattern:
         pos, found = self.layout.entry_positions(prow, pcol)
         assert found.all(), "diagonal blocks are always in the pattern"
         np.add.at(data, pos, P.ravel())
-        self.fold_correction = sp.csr_matrix(
-            (np.concatenate([vals, -P.ravel()]), (np.concatenate([rows, prow]), np.concatenate([cols, pcol]))),
-            shape=(n, n),
+        self._correction = (
+            np.concatenate([vals, -P.ravel()]),
+            np.concatenate([rows, prow]),
+            np.concatenate([cols, pcol]),
+            n,
         )
+        self._correction_matrix = None
         self._folded = (data, keys)
         self.folds += 1
         return True
