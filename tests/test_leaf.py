@@ -5,6 +5,7 @@ import pytest
 
 from idp._leaf import LEAVES, array_returning_leaves, compiled_leaves, leaf_njit, load_cached_leaves
 from idp.api import simulate
+from idp.bench.suite import _ball_in_box
 from idp.scene.load import scene_from_dict
 
 
@@ -37,28 +38,9 @@ def test_the_kernels_leaves_on_a_colliding_scene_return_no_arrays(tmp_path):
     """A tet ball grown against a box (elastic element pass, inversion filter, broad phase, CCD bounds, barrier
     Hessians with PSD projection, certificate) compiles its leaves, or they are in numba's cache already: every
     leaf signature compiled on this machine (by this scene or by the tests before it) returns scalars or nothing."""
-    s = scene_from_dict(
-        {
-            "name": "leaves",
-            "dim": 3,
-            "time": {"h": 0.04**2, "steps": 4},
-            "solver": {"newton_tol": 0.1},
-            "contact": {"dhat": 2e-3, "dhat_mode": "relative"},
-            "output": {"obj": False, "vtu": False, "png": False},
-            "objects": [
-                {
-                    "name": "ball",
-                    "generate": {"shape": "ball", "radius": 0.4, "resolution": 3},
-                    "rest_shape": {"growth_rate": 0.3, "growth_steps": 4},
-                },
-                {
-                    "name": "box",
-                    "kind": "obstacle",
-                    "generate": {"shape": "box_surface", "lo": [-0.5] * 3, "hi": [0.5] * 3, "resolution": 3},
-                },
-            ],
-        }
-    )
+    scene = _ball_in_box("leaves", 0.3, 4)  # a generated ball grown into a box's walls
+    scene["time"]["steps"] = 4
+    s = scene_from_dict(scene)
     res = simulate(s, tmp_path, progress=False)
     assert max(r["contacts"] for r in res.step_records) > 0, "the scene was meant to collide"
     assert res.summary["all_certified"]
