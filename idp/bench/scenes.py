@@ -56,6 +56,12 @@ def tube_in_tube(data: Path, steps: int = 60, newton_tol: float = 1.0):
     return scene_from_dict(d)
 
 
+#: The Newton tolerance (PNTol) the authors' hourglass script runs with (the bunny-in-box and tube references run
+#: with 1, as the suite's scenes: :data:`idp.bench.reference_run.REFERENCE_CASES`): the suite's hourglass scenes use
+#: it, so ``--with-reference`` compares fills like with like.
+HOURGLASS_REFERENCE_TOL = 1e-2
+
+
 def hourglass(data: Path, which: str = "bunny", steps: int = 30, newton_tol: float = 1.0):
     """Fig. 9: bunnyx30_13K (×0.05) or octocat23K (−90° about x) grown 3× over 20 steps in hourglass.obj.
 
@@ -110,8 +116,10 @@ def suite(data: Path) -> dict:
         "bunny_7448": (lambda: bunny_in_box(data, "bunny_7448.vtk", 10.0), "full"),
         "bunnyx30_13K": (lambda: bunny_in_box(data, "bunnyx30_13K.vtk", 1.0 / 3.0), "full"),
         "tube_in_tube": (lambda: tube_in_tube(data), "full"),
-        "hourglass_bunny": (lambda: hourglass(data, "bunny"), "full"),
-        "hourglass_octocat": (lambda: hourglass(data, "octocat"), "full"),
+        # at the authors' hourglass tolerance: at 1, idp takes one Newton iteration a frame and trails the growth
+        # (octocat: 30.0 % against 41.4 %; docs/benchmarks.md, "The octocat beside the reference")
+        "hourglass_bunny": (lambda: hourglass(data, "bunny", newton_tol=HOURGLASS_REFERENCE_TOL), "full"),
+        "hourglass_octocat": (lambda: hourglass(data, "octocat", newton_tol=HOURGLASS_REFERENCE_TOL), "full"),
         "bar_twist": (lambda: paper_scene("fig10_bar_elastic.toml"), "full"),
         "flow_cat": (lambda: paper_scene("fig12_cat.toml"), "full"),
         "flow_bunny3K_inward": (lambda: paper_scene("fig13_bunny3K.toml"), "full"),
