@@ -14,6 +14,12 @@ would drop a reference it was never given). numba refuses to compile a leaf that
 one or a view, but lets an argument through as the return value: :func:`array_returning_leaves` finds those (run on
 every leaf the test suite compiles, ``tests/test_leaf.py``). Views (``X[i]``) used inside the helper are fine.
 Everything else is ``numba.njit`` with ``cache=True`` and the options given.
+
+Older ways of dodging the counts predate this and stay as they were (the same code, the same results): coordinates
+passed as scalars (``intersections._orient3``), stencils read in place instead of row views, loops ended by a
+condition instead of ``break`` (``_distance_kernels``, ``_elastic_kernels._rotation_svd``, ``_psd_projection``). Their
+comments say what a view or a ``break`` costs in a counted function; inside a leaf neither costs anything, and a
+kernel that is not a leaf (every entry point, which allocates) still pays as they describe.
 """
 
 from __future__ import annotations
