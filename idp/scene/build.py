@@ -513,6 +513,8 @@ def build_scene(
             kappa_initial=dc.kappa_initial,
             max_doublings=dc.max_doublings,
             detect_blocked=dc.detect_blocked,
+            met_rule=dc.met_rule,
+            met_progress=dc.met_progress,
         )
         system.step_constraint = bc
         fixed_deformable = pinned.copy()

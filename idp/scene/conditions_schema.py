@@ -244,6 +244,10 @@ class DirichletConfig(_Model):
     # paper's rule alone, κ_B doubles until the targets are met or it reaches 2^max_doublings × kappa_initial
     detect_blocked: Bool = True
     on_unmet: Literal["warn", "error"] = "warn"
+    # "total_progress": also met once the bound vertices together have come met_progress of the way
+    # (1 − √(Σ‖x − x̃‖² / Σ‖x⁰ − x̃‖²)), then held where they are: the authors' code's rule
+    met_rule: Literal["each_vertex", "total_progress"] = "each_vertex"
+    met_progress: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.99
 
 
 class PlasticitySpec(_Model):

@@ -36,6 +36,15 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    the doublings stop bringing them closer (the prescribed input crosses itself there) or are spent are the
    bound vertices held where they are: met within the tolerance, the residual reported.
 
+   ``met_rule = "total_progress"`` is the authors' reading of "the targets are satisfied" (their
+   ``IMPLICIT_EULER.h``, both branches): the step's bound vertices together have come ``met_progress`` (0.99) of the
+   way, 1 − √(Σ_k ‖x_k − x̃_k‖² / Σ_k ‖x_k⁰ − x̃_k‖²) ≥ 0.99 with x⁰ the step's start; then the penalty is dropped and
+   the bound vertices are held where they are, not put on their targets. The sum is dominated by the vertices with
+   the longest moves, so vertices that resist (next to a bone handle's stiffest tets) may stay well short of theirs;
+   with targets that follow the vertices (``incremental`` motions, the authors' ``Reset_Dirichlet``) the shortfall
+   is never made up. Bound vertices with no move in the step (a fixed handle) are held exactly meanwhile, as
+   there. The per-vertex rule above still applies first.
+
 Bound vertices that are not optimised DOFs (a kinematic obstacle: a rigid tool) move first by the feasible
 fraction at ``begin``; then each tool is one reduced Newton DOF s: its vertices at x + s·P (P = the remaining
 move), pulled by the same penalty (weighted by the mean vertex mass) and pushed back by the barrier, so the tool
@@ -89,6 +98,8 @@ class DirichletTargets:
         tools_in_newton: bool = True,
         max_multiplier_updates: int = 30,
         max_snap_doublings: int = 8,
+        met_rule: str = "each_vertex",
+        met_progress: float = 0.99,
     ) -> None:
         """``masses``: (n,) lumped vertex masses m_k; ``free_vertices``: (n,) bool, vertices whose DOFs Newton
         optimises (default: those with mass); ``tolerance``: distance (scene units) under which a bound vertex
@@ -96,9 +107,16 @@ class DirichletTargets:
         bound vertex less than this fraction closer means the targets are blocked; ``tools_in_newton``: kinematic
         bound vertices (a rigid tool) move as one reduced Newton DOF per tool, pulled by the penalty (with the
         mean vertex mass as their weight); False: only by feasible moves between Newton solves (see the module
-        docstring)."""
+        docstring); ``met_rule``: ``"each_vertex"`` (every bound vertex within ``tolerance``) or also
+        ``"total_progress"`` (the bound vertices together ``met_progress`` of the way, the authors' rule)."""
         if not (tolerance > 0 and math.isfinite(tolerance)):
             raise ValueError(f"Dirichlet tolerance must be finite and > 0, got {tolerance!r}")
+        if met_rule not in ("each_vertex", "total_progress"):
+            raise ValueError(f"Dirichlet met_rule must be 'each_vertex' or 'total_progress', got {met_rule!r}")
+        if not 0.0 < met_progress < 1.0:
+            raise ValueError(f"Dirichlet met_progress must lie in (0, 1), got {met_progress!r}")
+        self.met_rule = met_rule
+        self.met_progress = float(met_progress)
         self.masses = np.asarray(masses, dtype=float)
         self.free_vertices = self.masses > 0 if free_vertices is None else np.asarray(free_vertices, dtype=bool)
         self.dim = dim
@@ -143,6 +161,7 @@ class DirichletTargets:
         self.frozen = False
         self._snap_residual: float | None = None  # the worst residual when κ_B was last doubled for a blocked snap
         self._snap_doublings = 0
+        self._start_distance2 = 0.0  # Σ_k ‖x_k − x̃_k‖² at the step's start (the total-progress rule)
 
     # -- set-up per step -----------------------------------------------------------------------
     def set_targets(
@@ -194,9 +213,16 @@ class DirichletTargets:
             x[self.vertices] = self.targets  # exactly on target (x + 1·P can differ in the last bit)
             self._hold()
             return x
+        self._start_distance2 = float(np.sum(P[self.vertices] ** 2))
         x = x + alpha * P
         self._met = False
         self._penalty_on = bool(self._penalised.any())
+        if self.met_rule == "total_progress":
+            # as the authors' code: bound vertices with no move this step (a fixed handle) stay exactly where
+            # they are while the others are pulled, instead of being held by the penalty alone
+            still = self._dof & ~np.any(P[self.vertices] != 0.0, axis=1)
+            v = self.vertices[still]
+            self._held[(v[:, None] * self.dim + np.arange(self.dim)[None, :]).ravel()] = True
         return x
 
     def accept(self, x: np.ndarray) -> None:
@@ -292,6 +318,10 @@ class DirichletTargets:
             # doublings would only press the colliding pair together; the residual is reported)
             self._hold()
             return x, True
+        if self.met_rule == "total_progress" and self._penalty_on and self._start_distance2 > 0.0:
+            if 1.0 - math.sqrt(float(np.sum(dist * dist)) / self._start_distance2) >= self.met_progress:
+                self._hold()  # the authors' rule: together far enough; held where they are, not snapped
+                return x, True
         if self._penalty_on and not near_converged:
             # stagnation: the penalty has not brought the worst handle min_progress closer for stall_iterations
             # Newton iterates whose steps CCD cut while some pair is within d̂; freeze the handles where they are.

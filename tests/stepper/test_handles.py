@@ -92,6 +92,36 @@ def test_penalty_doubles_near_convergence_and_is_dropped_once_the_targets_are_me
     assert held[[1, 2]].all() and not held[[0, 3]].any()
 
 
+def test_total_progress_rule_holds_the_handles_where_they_are_once_together_99_percent_of_the_way():
+    """The authors' rule: met once 1 − √(Σ‖x − x̃‖² / Σ‖x⁰ − x̃‖²) ≥ 0.99, however far one vertex lags; then held
+    where they are (not snapped) and the penalty dropped. A bound vertex with no move is held exactly from the
+    start."""
+    bc = DirichletTargets(np.ones(4), 2, tolerance=1e-6, kappa_initial=10.0, met_rule="total_progress")
+    x = np.zeros((4, 2))
+    bc.set_targets(np.array([0, 1, 2]), np.array([[10.0, 0.0], [0.0, 0.1], [0.0, 0.0]]))  # 2: a fixed handle
+    x1 = bc.begin(x, lambda x, P: 0.0)
+    assert not bc.settled and bc.penalty_value(x1) > 0
+    held = bc.held_dofs().reshape(4, 2)
+    assert held[2].all() and not held[[0, 1, 3]].any()
+    x2 = x1.copy()
+    x2[[0, 1]] = [[9.5, 0.0], [0.0, 0.05]]  # 95 % of the way: pulled on
+    assert bc.after_iterate(x2, False, lambda x, P: 1.0) == (x2, False)
+    x3 = x1.copy()
+    x3[[0, 1]] = [[9.99, 0.0], [0.0, 0.01]]  # together 99.1 % of the way, vertex 1 only 10 % of its own
+    x4, changed = bc.after_iterate(x3, False, lambda x, P: 1.0)
+    assert changed and bc.met and bc.settled and x4 is x3  # held where they are, not snapped
+    assert bc.penalty_value(x4) == 0.0 and bc.held_dofs().reshape(4, 2)[[0, 1, 2]].all()
+    # the default rule asks every vertex to be within the tolerance: the same iterate is not met
+    d = DirichletTargets(np.ones(4), 2, tolerance=1e-6, kappa_initial=10.0)
+    d.set_targets(np.array([0, 1, 2]), np.array([[10.0, 0.0], [0.0, 0.1], [0.0, 0.0]]))
+    d.begin(x, lambda x, P: 0.0)
+    assert not d.after_iterate(x3, False, lambda x, P: 1.0)[1] and not d.met
+    with pytest.raises(ValueError, match="met_rule"):
+        DirichletTargets(np.ones(2), 1, tolerance=1e-6, met_rule="some")
+    with pytest.raises(ValueError, match="met_progress"):
+        DirichletTargets(np.ones(2), 1, tolerance=1e-6, met_rule="total_progress", met_progress=1.0)
+
+
 def _one_handle(target: float = 1.0, **settings) -> tuple[DirichletTargets, np.ndarray]:
     """Two 1D vertices of unit mass, vertex 0 bound to ``target`` from x = 0 (no feasible move: the penalty pulls)."""
     bc = DirichletTargets(np.ones(2), 1, **settings)
