@@ -28,7 +28,12 @@ def _thread_count(text: str) -> int:
 
 
 def _set_threads(n: int | None) -> None:
-    """Thread count for numba kernels, ipctk (TBB) and BLAS; must run before those libraries load."""
+    """Thread count for numba kernels, ipctk (TBB), BLAS and CHOLMOD's routed BLAS (its pool follows numba's count).
+
+    The environment variables reach libraries that load later (and child processes). numba and the OpenBLAS pools
+    read their counts when they load, so where a caller loaded them before ``main`` (a script that imports numpy,
+    scipy or numba first) they are set directly too; before, such a caller's ``--threads 1`` left numba and
+    CHOLMOD's BLAS on every core."""
     if not n:
         return
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
@@ -36,6 +41,13 @@ def _set_threads(n: int | None) -> None:
     import ipctk
 
     ipctk.set_num_threads(n)
+    if "numba" in sys.modules:
+        import numba
+
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=n)  # every BLAS/OpenMP pool loaded so far, for the rest of the process
 
 
 class Terminated(KeyboardInterrupt):

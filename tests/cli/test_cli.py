@@ -105,3 +105,27 @@ def test_check_reports_meshes(tmp_path, capsys):
 def test_module_entry_point_runs():
     r = subprocess.run([sys.executable, "-m", "idp", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "run" in r.stdout and "check" in r.stdout
+
+
+def test_threads_option_reaches_numba_blas_and_cholmod(tmp_path):
+    """``--threads 1`` reaches numba, every BLAS pool and CHOLMOD's routed BLAS even when numba and scipy's OpenBLAS
+    were loaded before the option was read (a script that imports them first, then calls the CLI's ``main``)."""
+    scene = write_scene(tmp_path)
+    probe = (
+        "import sys\n"
+        "import numba, numpy, scipy.linalg\n"
+        "from idp.cli import main\n"
+        "assert main(['run', sys.argv[1], '-o', sys.argv[2], '-q', '--threads', '1']) == 0\n"
+        "import numba\n"
+        "from threadpoolctl import threadpool_info\n"
+        "import idp.solver.cholmod_blas as cb\n"
+        "pools = sorted({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'})\n"
+        "print('RESULT', numba.get_num_threads(), cb._threads, pools)\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", probe, str(scene), str(tmp_path / "out")], capture_output=True, text=True, timeout=600
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    line = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT")][-1]
+    assert line == "RESULT 1 1 [1]", line
+
