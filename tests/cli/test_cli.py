@@ -128,4 +128,3 @@ def test_threads_option_reaches_numba_blas_and_cholmod(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     line = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT")][-1]
     assert line == "RESULT 1 1 [1]", line
-

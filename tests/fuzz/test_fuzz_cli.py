@@ -24,11 +24,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import pytest
 from fuzz.common import fuzz, mutated_bytes
 from hypothesis import event, given
 from hypothesis import strategies as st
+from threadpoolctl import ThreadpoolController
 
 from idp.cli import build_parser, main
 from idp.mesh.generate import tet_box
@@ -208,6 +210,8 @@ def call(argv: list[str], workdir: Path | None = None) -> tuple[int, str, str]:
     """``main(argv)`` with stdout/stderr captured and the thread settings it may change restored; SystemExit
     (argparse) is turned into its code. Any other exception propagates and fails the test."""
     saved = {k: os.environ.get(k) for k in THREAD_VARS}
+    numba_threads = numba.get_num_threads()  # --threads sets numba's count and the loaded BLAS pools directly
+    pools = [(lib, lib.num_threads) for lib in ThreadpoolController().lib_controllers]
     out, err = io.StringIO(), io.StringIO()
     cwd = os.getcwd()
     try:
@@ -229,6 +233,9 @@ def call(argv: list[str], workdir: Path | None = None) -> tuple[int, str, str]:
             import ipctk
 
             ipctk.set_num_threads(1)
+            numba.set_num_threads(numba_threads)
+            for lib, n in pools:
+                lib.set_num_threads(n)
     return int(code or 0), out.getvalue(), err.getvalue()
 
 
