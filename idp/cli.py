@@ -44,7 +44,7 @@ def _set_threads(n: int | None) -> None:
     if "numba" in sys.modules:
         import numba
 
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=n)  # every BLAS/OpenMP pool loaded so far, for the rest of the process
