@@ -213,16 +213,15 @@ class DirichletTargets:
             x[self.vertices] = self.targets  # exactly on target (x + 1·P can differ in the last bit)
             self._hold()
             return x
-        self._start_distance2 = float(np.sum(P[self.vertices] ** 2))
+        moves = P[self.vertices]
+        self._start_distance2 = float(np.sum(moves**2))
         x = x + alpha * P
         self._met = False
         self._penalty_on = bool(self._penalised.any())
         if self.met_rule == "total_progress":
             # as the authors' code: bound vertices with no move this step (a fixed handle) stay exactly where
             # they are while the others are pulled, instead of being held by the penalty alone
-            still = self._dof & ~np.any(P[self.vertices] != 0.0, axis=1)
-            v = self.vertices[still]
-            self._held[(v[:, None] * self.dim + np.arange(self.dim)[None, :]).ravel()] = True
+            self._hold_vertices(self.vertices[self._dof & ~np.any(moves != 0.0, axis=1)])
         return x
 
     def accept(self, x: np.ndarray) -> None:
@@ -234,7 +233,10 @@ class DirichletTargets:
         """Hold the bound DOFs where they are and drop the penalty (on target, or frozen when stalled)."""
         self._met = met
         self._penalty_on = False
-        v = self.vertices[self._dof]
+        self._hold_vertices(self.vertices[self._dof])
+
+    def _hold_vertices(self, v: np.ndarray) -> None:
+        """Mark every DOF of the vertices ``v`` as held (Newton leaves them where they are)."""
         self._held[(v[:, None] * self.dim + np.arange(self.dim)[None, :]).ravel()] = True
 
     @property
