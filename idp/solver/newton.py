@@ -647,8 +647,14 @@ class StepSolver:
             if accepted:
                 x, ev, energy, el, bar = trial
                 res.alphas.append(alpha)
-                # on while CCD keeps cutting the moves short, off again after a move it lets through
-                self._lookahead = cfg.contact_lookahead > 1.0 and alpha_ccd < LOOKAHEAD_TRIGGER and ev is not None
+                # on while CCD keeps cutting the moves short, off again after a move it lets through; never while
+                # kinematic tools move: their bordered system (_direction_with_tools) couples a tool to the body
+                # through the exact contact Hessian only, so look-ahead blocks would stiffen the body's side of a
+                # pair and not the tool's, and the tool would press the body without it giving way (a plate
+                # squashing a ball: blocked after one step, gaps crushed to ~1e-10; docs/handles.md)
+                self._lookahead = (
+                    cfg.contact_lookahead > 1.0 and alpha_ccd < LOOKAHEAD_TRIGGER and ev is not None and not tools
+                )
             else:
                 res.alphas.append(0.0)
                 if not converged:

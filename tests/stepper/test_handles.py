@@ -412,6 +412,46 @@ def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
     assert plate_y.min() - ball_y.max() < 1e-3 and ball_y.min() < 1e-3  # in contact with both (within d̂)
 
 
+def test_a_fast_kinematic_press_with_contact_look_ahead_is_not_blocked(tmp_path):
+    # the plate comes down 0.06 per step (a fifth of the ball's radius) with the contact look-ahead on. Its blocks
+    # stiffen the ball's side of each pair just outside d̂, but a tool is coupled to the ball through the exact
+    # contact Hessian only; with look-ahead in the tools' bordered system the plate pressed the ball without it
+    # giving way: blocked from step 2, gaps crushed to ~1e-9 (Fig. 1's compress stage stalled the same way).
+    ball = {
+        "name": "ball",
+        "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
+        "translate": [0, 0.302, 0],
+        "material": {"youngs_modulus": 1e4, "poisson_ratio": 0.4},
+    }
+    floor = {
+        "name": "floor",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-1, -0.1, -1], "hi": [1, 0.0, 1], "resolution": 1},
+    }
+    plate = {
+        "name": "plate",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [-0.5, 0.62, -0.5], "hi": [0.5, 0.7, 0.5], "resolution": 1},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, -1.5, 0.0]}},
+    }
+    steps = 4
+    d = {
+        "time": {"h": H, "steps": steps},
+        "solver": {"check_every_iterate": True, "contact_lookahead": 2},
+        "contact": {"dhat": 1e-3},
+        "output": {"obj": False, "vtu": False, "png": False},
+        "objects": [ball, floor, plate],
+    }
+    res = simulate(scene_from_dict(d), tmp_path, progress=False)
+    recs = certified(res)
+    assert all(r["dirichlet"]["met"] and not r["dirichlet"]["blocked"] for r in recs[1:])
+    assert all(r["lookahead_iterations"] == 0 for r in recs[1:])  # a tool moved in every step
+    assert min(r["min_distance"] for r in recs[1:]) > 1e-5
+    by_name = {p.name: p for p in res.parts}
+    plate_y = res.x[by_name["plate"].vertex_ids][:, 1]
+    assert plate_y.min() == pytest.approx(0.62 - 0.06 * steps, abs=1e-9)
+
+
 def test_motions():
     X = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     np.testing.assert_allclose(Translate(np.array([0.0, 0.0, 1.0])).targets(X, 0.5), X + np.array([0.0, 0.0, 0.5]))
