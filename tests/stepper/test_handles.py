@@ -370,15 +370,14 @@ def test_fast_kinematic_obstacle_does_not_tunnel(tmp_path):
     assert plate[:, 1].max() - plate[:, 1].min() == pytest.approx(0.05, rel=1e-9)  # moved rigidly
 
 
-def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
-    # a rigid plate moving down 0.02 per step onto a ball resting on a floor: the ball cannot move away, so the
-    # plate advances only as the ball is compressed. With the plate as one Newton DOF the targets are met every
-    # step; as a tool moved between Newton solves it stalled (blocked after one step, gaps ~1e-6 for d̂ = 1e-3).
+def press_ball_onto_floor(tmp_path, *, speed, steps, poisson_ratio, solver):
+    """A rigid plate moving down ``speed`` per unit time onto a ball resting on a floor (all generated); returns
+    the run's result and its certified step records."""
     ball = {
         "name": "ball",
         "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
         "translate": [0, 0.302, 0],
-        "material": {"youngs_modulus": 1e4, "poisson_ratio": 0.3},
+        "material": {"youngs_modulus": 1e4, "poisson_ratio": poisson_ratio},
     }
     floor = {
         "name": "floor",
@@ -389,18 +388,25 @@ def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
         "name": "plate",
         "kind": "obstacle",
         "generate": {"shape": "box_surface", "lo": [-0.5, 0.62, -0.5], "hi": [0.5, 0.7, 0.5], "resolution": 1},
-        "motion": {"motion": {"type": "translate", "velocity": [0.0, -0.5, 0.0]}},
+        "motion": {"motion": {"type": "translate", "velocity": [0.0, -speed, 0.0]}},
     }
-    steps = 5
     d = {
         "time": {"h": H, "steps": steps},
-        "solver": {"check_every_iterate": True},
+        "solver": {"check_every_iterate": True, **solver},
         "contact": {"dhat": 1e-3},
         "output": {"obj": False, "vtu": False, "png": False},
         "objects": [ball, floor, plate],
     }
     res = simulate(scene_from_dict(d), tmp_path, progress=False)
-    recs = certified(res)
+    return res, certified(res)
+
+
+def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
+    # a rigid plate moving down 0.02 per step onto a ball resting on a floor: the ball cannot move away, so the
+    # plate advances only as the ball is compressed. With the plate as one Newton DOF the targets are met every
+    # step; as a tool moved between Newton solves it stalled (blocked after one step, gaps ~1e-6 for d̂ = 1e-3).
+    steps = 5
+    res, recs = press_ball_onto_floor(tmp_path, speed=0.5, steps=steps, poisson_ratio=0.3, solver={})
     assert all(r["dirichlet"]["met"] and not r["dirichlet"]["blocked"] for r in recs)
     assert min(r["min_distance"] for r in recs) > 1e-5  # no gap crushed towards 0 (d̂ = 1e-3)
     by_name = {p.name: p for p in res.parts}
@@ -417,33 +423,10 @@ def test_a_fast_kinematic_press_with_contact_look_ahead_is_not_blocked(tmp_path)
     # stiffen the ball's side of each pair just outside d̂, but a tool is coupled to the ball through the exact
     # contact Hessian only; with look-ahead in the tools' bordered system the plate pressed the ball without it
     # giving way: blocked from step 2, gaps crushed to ~1e-9 (Fig. 1's compress stage stalled the same way).
-    ball = {
-        "name": "ball",
-        "generate": {"shape": "ball", "radius": 0.3, "resolution": 2},
-        "translate": [0, 0.302, 0],
-        "material": {"youngs_modulus": 1e4, "poisson_ratio": 0.4},
-    }
-    floor = {
-        "name": "floor",
-        "kind": "obstacle",
-        "generate": {"shape": "box_surface", "lo": [-1, -0.1, -1], "hi": [1, 0.0, 1], "resolution": 1},
-    }
-    plate = {
-        "name": "plate",
-        "kind": "obstacle",
-        "generate": {"shape": "box_surface", "lo": [-0.5, 0.62, -0.5], "hi": [0.5, 0.7, 0.5], "resolution": 1},
-        "motion": {"motion": {"type": "translate", "velocity": [0.0, -1.5, 0.0]}},
-    }
     steps = 4
-    d = {
-        "time": {"h": H, "steps": steps},
-        "solver": {"check_every_iterate": True, "contact_lookahead": 2},
-        "contact": {"dhat": 1e-3},
-        "output": {"obj": False, "vtu": False, "png": False},
-        "objects": [ball, floor, plate],
-    }
-    res = simulate(scene_from_dict(d), tmp_path, progress=False)
-    recs = certified(res)
+    res, recs = press_ball_onto_floor(
+        tmp_path, speed=1.5, steps=steps, poisson_ratio=0.4, solver={"contact_lookahead": 2}
+    )
     assert all(r["dirichlet"]["met"] and not r["dirichlet"]["blocked"] for r in recs[1:])
     assert all(r["lookahead_iterations"] == 0 for r in recs[1:])  # a tool moved in every step
     assert min(r["min_distance"] for r in recs[1:]) > 1e-5
