@@ -244,9 +244,9 @@ def _stage_scene(scene: Scene, stage: StageSpec, k: int, objects: list[SceneObje
         base["gravity"] = stage.gravity
     base.setdefault("output", {})["dir"] = out
     base["objects"] = objects
-    if scene.sticky is not None:  # links among this stage's objects only; none when fewer than two take part
+    if scene.sticky is not None:  # links among this stage's objects only; none when too few take part
         present = scene.sticky.matches([ob.name for ob in objects])
-        if len(present) >= 2:
+        if len(present) >= scene.sticky.min_bodies:
             base["sticky"]["bodies"] = present
         else:
             base.pop("sticky", None)

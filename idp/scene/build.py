@@ -593,7 +593,8 @@ def _encloses(verts: np.ndarray, faces: np.ndarray, sample: np.ndarray | None) -
 
 
 def _sticky(scene, parts, system) -> None:
-    """`[sticky]`: a pair-spring term relinked before every step between the matched bodies' surface vertices."""
+    """`[sticky]`: a pair-spring term linked before steps (every step, or once as glue) between the matched bodies'
+    surface vertices."""
     from idp.energies.pair_springs import PairSprings
     from idp.stepper.sticky import StickyContact
 
@@ -601,17 +602,32 @@ def _sticky(scene, parts, system) -> None:
     chosen = set(st.matches([p.name for p in parts]))
     if system.contact is None or not system.contact.compiled or system.contact_pattern is None:
         raise SceneError("sticky: sticky contact needs contact on, in 3D, with the compiled barrier")
-    verts, body = [], []
+    verts, body, tris = [], [], []
     for k, p in enumerate(parts):
         if p.name in chosen and p.surface.size:
             v = np.unique(p.surface)
             verts.append(v)
             body.append(np.full(v.size, k, np.int64))
+            tris.append(np.asarray(p.surface, np.int64).reshape(-1, 3))
     springs = PairSprings(system.dim, st.stiffness)
     system.pair_terms.append(springs)
-    if len(verts) >= 2:
-        system.conditions.append(StickyContact(np.concatenate(verts), np.concatenate(body), st.distance, springs))
-    system.meta["sticky"] = {"bodies": sorted(chosen), "distance": st.distance, "stiffness": st.stiffness}
+    if len(verts) >= st.min_bodies:
+        system.conditions.append(
+            StickyContact(
+                np.concatenate(verts),
+                np.concatenate(body),
+                st.distance,
+                springs,
+                mode=st.mode,
+                triangles=np.concatenate(tris),
+            )
+        )
+    system.meta["sticky"] = {
+        "bodies": sorted(chosen),
+        "distance": st.distance,
+        "stiffness": st.stiffness,
+        "mode": st.mode,
+    }
 
 
 def picture_up_axis(scene) -> str:

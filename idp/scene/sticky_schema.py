@@ -7,6 +7,7 @@ the wrappers and the pusher stick.
 from __future__ import annotations
 
 import fnmatch
+from typing import Literal
 
 from pydantic import Field
 
@@ -15,13 +16,22 @@ from idp.scene.schema_base import Name, PosFloat, _Model
 
 class StickyConfig(_Model):
     """``bodies``: object names or shell-style patterns (``"wrapper_*"`` matches the instanced copies
-    ``wrapper_0`` …); links join surface vertices of two different matched bodies closer than ``distance`` (scene
-    units) at the start of a step. ``stiffness``: k of the zero-length springs (k/2)‖x_a − x_b‖² (the authors'
-    value is 1)."""
+    ``wrapper_0`` …); ``distance``: the link radius (scene units); ``stiffness``: k of the springs (the authors'
+    value is 1). ``mode = "relink"``: zero-length springs (k/2)‖x_a − x_b‖² between surface vertices of two
+    different matched bodies within ``distance``, found afresh at the start of every step. ``mode = "glue"`` (the
+    authors' run): once, at the first step start with any pair within ``distance``, springs (k/2)(‖x_a − x_b‖ − ℓ)²
+    of rest length ℓ = their distance then, between different bodies and between a body's own surfaces that face
+    each other (a seam), kept for the rest of the run."""
 
     bodies: list[Name] = Field(min_length=1)
     distance: PosFloat
     stiffness: PosFloat = 1.0
+    mode: Literal["relink", "glue"] = "relink"
+
+    @property
+    def min_bodies(self) -> int:
+        """How many matched bodies the links need: glue also joins a body's own facing surfaces."""
+        return 1 if self.mode == "glue" else 2
 
     def matches(self, names: list[str]) -> list[str]:
         """The names among ``names`` that some entry of ``bodies`` matches, in ``names``' order."""

@@ -256,11 +256,11 @@ class StepSolver:
                 H = H + restrict_collision_hessian(s.contact.hessian(ev), s.collision_dof_to_free, s.dof_map.num_free)
             for t in pairs:
                 free = s.dof_map.free_dofs
-                H = H + (s.h * t.hessian(x.shape[0]))[free][:, free]
+                H = H + (s.h * t.hessian(x))[free][:, free]
             return g, H
         if pairs:  # vertex-pair blocks beside the contact blocks (3D compiled barrier, checked when built)
             width = 4 * s.dim
-            parts = [t.hessian_blocks(s.vertex_to_free, width, s.h) for t in pairs]
+            parts = [t.hessian_blocks(x, s.vertex_to_free, width, s.h) for t in pairs]
             if active:
                 parts.insert(0, s.contact.hessian_blocks(ev, s.collision_vertex_to_free))
             block_verts = np.concatenate([p[0] for p in parts])

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from idp.api import simulate
 from idp.errors import SceneError
@@ -108,3 +109,84 @@ def test_stages_link_only_the_bodies_taking_part(tmp_path):
     s1 = load_scene(tmp_path / "r" / "stages" / "01_alone" / "scene.resolved.toml")
     assert s0.sticky is not None and s0.sticky.bodies == ["ball_0", "ball_1"]
     assert s1.sticky is None  # one body left: nothing to link
+
+
+def _clam(tmp_path, mode: str, stiffness: float = 50.0, steps: int = 3, pull: float = 0.0) -> dict[str, Any]:
+    """One body of two balls 0.01 apart (a closed seam whose lips touch but are not joined), no gravity; with
+    ``pull`` the right ball's far cap is moved away at that speed."""
+    import meshio
+
+    from idp.mesh.generate import tet_ball
+
+    path = tmp_path / "clam.vtu"
+    if not path.exists():
+        a, b = tet_ball(0.2, (-0.205, 0.0, 0.0), 3), tet_ball(0.2, (0.205, 0.0, 0.0), 3)
+        pts = np.vstack([a.vertices, b.vertices])
+        tets = np.vstack([a.elements, b.elements + a.vertices.shape[0]])
+        meshio.write(path, meshio.Mesh(pts, [("tetra", tets)]))
+    ob: dict[str, Any] = {"name": "clam", "mesh": str(path), "material": {"youngs_modulus": 1e3}}
+    if pull:
+        ob["handles"] = [
+            {
+                "name": "pull",
+                "select": {"box": [[0.95, -0.01, -0.01], [1.01, 1.01, 1.01]], "relative": True},
+                "motion": {"type": "translate", "velocity": [pull, 0.0, 0.0]},
+            }
+        ]
+    return {
+        "name": "clam",
+        "dim": 3,
+        "time": {"h": 1e-2, "steps": steps},
+        "contact": {"dhat": 1e-3},
+        "output": {"png": False, "obj": False, "vtu": False},
+        "objects": [ob],
+        "sticky": {"bodies": ["clam"], "distance": 0.05, "stiffness": stiffness, "mode": mode},
+    }
+
+
+def test_glue_links_a_bodys_facing_surfaces_and_not_its_neighbours(tmp_path):
+    from idp.scene.build import build_scene
+
+    built = build_scene(scene_from_dict(_clam(tmp_path, "glue")))
+    sticky = next(c for c in built.system.conditions if getattr(c, "report_key", None) == "sticky")
+    x = built.system.x
+    pairs = sticky.candidate_pairs(x)
+    n = x.shape[0] // 2
+    # every link crosses the seam (left ball to right ball); none joins two vertices of one ball, although
+    # surface neighbours of a ball lie within the link radius too
+    assert pairs.shape[0] > 0 and np.all((pairs[:, 0] < n) != (pairs[:, 1] < n))
+    near = cKDTree(x[sticky.vertices]).query_pairs(0.05, output_type="ndarray")
+    tree_pairs = sticky.vertices[near]
+    assert np.any((tree_pairs[:, 0] < n) == (tree_pairs[:, 1] < n))  # such neighbour pairs exist and were dropped
+    # relinking joins different bodies only: nothing to link within one body (and one body is too few for it)
+    relink = build_scene(scene_from_dict(_clam(tmp_path, "relink")))
+    assert not any(getattr(c, "report_key", None) == "sticky" for c in relink.system.conditions)
+
+
+def test_glue_is_made_once_and_holds_a_seam_closed(tmp_path):
+    glued = simulate(scene_from_dict(_clam(tmp_path, "glue", pull=0.5)), tmp_path / "glue", progress=False)
+    loose = simulate(
+        scene_from_dict({**_clam(tmp_path, "glue", pull=0.5), "sticky": None}), tmp_path / "loose", progress=False
+    )
+    assert glued.summary["all_certified"] and loose.summary["all_certified"]
+    recs = [r["sticky"] for r in glued.step_records if "sticky" in r and not r.get("initial")]
+    assert len(recs) == 3 and all(r["glued_at"] == 1 for r in recs)
+    assert len({r["links"] for r in recs}) == 1 and recs[0]["links"] > 0  # the same links all along
+    n = glued.x.shape[0] // 2
+    # the right ball is pulled 0.015 away; the glue drags the left ball after it, the loose one stays put
+    assert loose.x[:n, 0].max() < -0.005 + 1e-3
+    assert glued.x[:n, 0].max() > loose.x[:n, 0].max() + 2e-3
+    assert 0.0 < glued.summary["min_distance"]
+
+
+def test_glue_links_survive_a_resume(tmp_path):
+    whole = simulate(scene_from_dict(_clam(tmp_path, "glue", pull=0.5, steps=4)), tmp_path / "whole", progress=False)
+    simulate(scene_from_dict(_clam(tmp_path, "glue", pull=0.5, steps=2)), tmp_path / "split", progress=False)
+    resumed = simulate(
+        scene_from_dict(_clam(tmp_path, "glue", pull=0.5, steps=4)), tmp_path / "split", progress=False, resume=True
+    )
+    last = [r["sticky"] for r in resumed.step_records if "sticky" in r and not r.get("initial")][-1]
+    assert last["glued_at"] == 1  # restored from the checkpoint, not glued again at step 3
+    ref = [r["sticky"] for r in whole.step_records if "sticky" in r and not r.get("initial")][-1]
+    assert last["links"] == ref["links"]
+    np.testing.assert_allclose(resumed.x, whole.x, atol=1e-8)
