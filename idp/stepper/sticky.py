@@ -25,20 +25,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from idp.energies.pair_springs import PairSprings
+from idp.mesh.differential import vertex_normals
 
 MODES = ("relink", "glue")
-
-
-def vertex_normals(x: np.ndarray, triangles: np.ndarray, num_vertices: int) -> np.ndarray:
-    """Area-weighted unit vertex normals ((num_vertices, 3); zero where no triangle touches) of outward triangles."""
-    t = np.asarray(triangles, dtype=np.int64)
-    n = np.zeros((num_vertices, 3))
-    if t.shape[0]:
-        fn = np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])  # twice the area, outward
-        for c in range(3):
-            np.add.at(n, t[:, c], fn)
-    length = np.linalg.norm(n, axis=1)
-    return n / np.where(length > 0.0, length, 1.0)[:, None]
 
 
 def facing(x: np.ndarray, normals: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -95,7 +84,7 @@ class StickyContact:
         if self.mode == "relink":
             return g[other]
         assert self.triangles is not None  # checked in __init__ for glue
-        normals = vertex_normals(p, self.triangles, p.shape[0])
+        normals = vertex_normals(p, self.triangles, unit=True)
         same = ~other
         keep = other.copy()
         keep[same] = facing(p, normals, g[same, 0], g[same, 1])
