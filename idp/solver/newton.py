@@ -136,6 +136,10 @@ class NewtonResult:
     pcg_iterations: int = 0  # CG iterations spent on exact directions after folded matrices
     exact_refactorizations: int = 0  # ... and factorisations where CG did not converge
     lookahead_iterations: int = 0  # iterations whose search matrix saw pairs beyond d̂ (contact_lookahead)
+    # why the last iteration's decrement, though within tol, did not end the solve ("" when it was above tol or
+    # the solve converged): its direction came from a look-ahead majorant, or the step constraint changed or had
+    # not settled (handles / targets still being pulled, κ_B doubled, a snap)
+    unconfirmed: str = ""
     num_contacts: int = 0
     kappa: float = 0.0
     energy: float = 0.0
@@ -621,8 +625,10 @@ class StepSolver:
                 p_free, tool_move = self._direction(H, g, res), 0.0
             res.decrement = max(self._measure(p_free), tool_move) / sqrt_h
             converged = res.decrement <= cfg.tol
+            res.unconfirmed = ""
             if converged and self._lookahead_used:  # a majorant's direction: the next iteration, exact, judges
                 converged, self._lookahead = False, False
+                res.unconfirmed = "its direction came from the contact look-ahead's majorant, not yet confirmed"
             if converged and not tools and s.contact_pattern is not None and s.contact_pattern.last_folded:
                 # the matrix was a folded majorant: judge convergence on the exact Newton direction
                 p_free = self._exact_direction(H, g, p_free, res)
@@ -691,6 +697,8 @@ class StepSolver:
             if converged and not changed and (c is None or c.settled):
                 res.converged = True
                 break
+            if converged:
+                res.unconfirmed = "the step constraint (handles, targets) changed or had not settled"
             if cfg.max_seconds is not None and time.perf_counter() - t_start > cfg.max_seconds:
                 res.hit_wall_limit = True  # x is an accepted (feasible, certified-to-be) iterate
                 break

@@ -171,6 +171,15 @@ def _condition_reports(system, x: np.ndarray) -> dict:
     return out
 
 
+def nonconvergence_message(step: int, res, newton: NewtonSettings) -> str:
+    """The warning (or error) for a step that ended without converging: the limit that stopped it and its last
+    Newton decrement; a decrement already within tol says why it did not end the solve."""
+    msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement {res.decrement:.3e} "
+    if res.decrement <= newton.tol and res.unconfirmed:
+        return msg + f"<= tol {newton.tol:g}, but {res.unconfirmed})"
+    return msg + f"> tol {newton.tol:g})"
+
+
 def _nonconvergence_reason(res, newton: NewtonSettings) -> str:
     """Why a step stopped without converging, naming the limit that stopped it."""
     its = f"{res.iterations} Newton iteration{'s' if res.iterations != 1 else ''}"
@@ -306,6 +315,7 @@ def run_simulation(
                     "hit_wall_limit": res.hit_wall_limit,
                     "line_search_failed": res.line_search_failed,
                     "newton_decrement": res.decrement,
+                    "decrement_unconfirmed": res.unconfirmed,
                     "alphas": res.alphas,
                     "ccd_alphas": res.ccd_alphas,
                     "inversion_alphas": res.inversion_alphas,
@@ -341,8 +351,7 @@ def run_simulation(
                     raise CertificateError(f"step {step} failed the injectivity certificate: {cert.describe()}")
                 if not res.converged:
                     nonconverged += 1
-                    msg = f"step {step} did not converge ({_nonconvergence_reason(res, newton)}; decrement "
-                    msg += f"{res.decrement:.3e} > tol {newton.tol:g})"
+                    msg = nonconvergence_message(step, res, newton)
                     if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
                         writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
                         _save_checkpoint(checkpoint, x, step, system)

@@ -675,3 +675,34 @@ def test_exclude_vectors_are_checked_against_dim():
     bad = {**RIGHT, "exclude": {"sphere": {"center": [0.5, 0.05], "radius": 0.06}}}
     with pytest.raises(SceneError, match=r"handles\[0\]\.select\.exclude\.sphere\.center"):
         beam_scene([{"name": "tip", "select": bad}], steps=1)
+
+
+def test_a_decrement_within_tol_that_did_not_end_the_solve_is_explained(tmp_path, caplog):
+    """A step stopped by the iteration cap right after an iterate whose decrement was within tol, but whose
+    handles were still being pulled (κ_B doubled): the record and the warning say why it did not converge."""
+    import logging
+
+    block = {
+        "name": "block",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
+    }
+    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
+    free_run = simulate(beam_scene([tip], steps=1, extra_objects=[block]), tmp_path / "free", progress=False)
+    rec = free_run.step_records[0]
+    assert rec["converged"] and not rec["dirichlet"]["met"]
+    within = [i for i, d in enumerate(rec["decrements"][:-1]) if d <= 1e-2]
+    assert within, "no iterate within tol before the last: the scene tests nothing"
+    cap = within[0] + 1
+    with caplog.at_level(logging.WARNING, logger="idp"):
+        capped = simulate(
+            beam_scene(
+                [tip], steps=1, extra_objects=[block], solver={"newton_tol": 1e-2, "max_newton_iterations": cap}
+            ),
+            tmp_path / "capped",
+            progress=False,
+        )
+    rec = capped.step_records[0]
+    assert rec["hit_iteration_cap"] and not rec["converged"] and rec["newton_decrement"] <= 1e-2
+    assert "step constraint" in rec["decrement_unconfirmed"]
+    assert "<= tol 0.01, but the step constraint" in caplog.text and "> tol" not in caplog.text
