@@ -37,6 +37,7 @@ from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
 from idp.solver.held_reduction import HeldReduction, keeps_vertex_groups
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
+from idp.solver.lookahead import LOOKAHEAD_STIFFNESS, LOOKAHEAD_TRIGGER, LookaheadSwitch
 from idp.solver.memory import MemoryGuard, step_overhead_bytes
 from idp.solver.pcg import pcg_from_majorant
 
@@ -61,13 +62,6 @@ def _positive_scaling(diagonal: np.ndarray) -> np.ndarray:
 #: with no such bound the last steps, with the elbow closing, missed their targets; with 1 — no pair any closer —
 #: pairs that sit within d̂ from the start blocked most extensions).
 EXTEND_GAP_SHARE = 0.5
-
-#: Contact look-ahead (``NewtonSettings.contact_lookahead``): on for the next iteration after an accepted step that
-#: CCD cut below this fraction of the Newton step (and so on while the cuts go on), and its barrier's stiffness as a
-#: share of κ (bunny_700: shares 1, 0.1, 0.01, 0.001 gave 279, 229, 208, 219 Newton iterations against 240 without;
-#: 0.01 at reach 3: 199).
-LOOKAHEAD_TRIGGER = 0.5
-LOOKAHEAD_STIFFNESS = 0.01
 
 
 def line_search_extrapolation(setting: str | float, terms) -> float:
@@ -178,7 +172,7 @@ class StepSolver:
         self._held: np.ndarray | None = None  # free-DOF mask of DOFs held by the step constraint
         self._skip_stencils: dict[int, np.ndarray] = {}  # per term index: stencils on held or fixed DOFs only
         self._may_extend = False  # whether this iteration's full step may be extended (see _extrapolate)
-        self._lookahead = False  # whether this iteration's search matrix sees pairs beyond d̂ (contact_lookahead)
+        self._lookahead = LookaheadSwitch(False)  # whether the search matrix sees pairs beyond d̂ (contact_lookahead)
         self._cut_sweep = None  # sweep candidates of the last move CCD cut short (contact_lookahead)
         self._lookahead_used = False  # whether this iteration's search matrix held look-ahead blocks
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
@@ -273,7 +267,9 @@ class StepSolver:
         if not active:
             return g, s.contact_pattern.assemble(data)
         if s.contact.compiled:
-            ahead = (self.settings.contact_lookahead, LOOKAHEAD_STIFFNESS, self._cut_sweep) if self._lookahead else None
+            ahead = (
+                (self.settings.contact_lookahead, LOOKAHEAD_STIFFNESS, self._cut_sweep) if self._lookahead.on else None
+            )
             stream = s.contact.hessian_block_stream(ev, s.collision_vertex_to_free, ahead)
             self._lookahead_used = stream.n_ahead > 0
             # the elastic values on the contact layout; then the contact blocks added a range at a time (neither the
@@ -563,7 +559,7 @@ class StepSolver:
         self._constraint = s.step_constraint
         self._held = None
         self._skip_stencils = {}
-        self._lookahead = False  # the search matrix's contact look-ahead, on after a step CCD cut short
+        self._lookahead = LookaheadSwitch(self.settings.contact_lookahead > 1.0)  # on after a step CCD cut short
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
         try:
@@ -624,10 +620,10 @@ class StepSolver:
             else:
                 p_free, tool_move = self._direction(H, g, res), 0.0
             res.decrement = max(self._measure(p_free), tool_move) / sqrt_h
-            converged = res.decrement <= cfg.tol
+            within_tol = res.decrement <= cfg.tol
+            converged = self._lookahead.may_end_solve(within_tol, self._lookahead_used)
             res.unconfirmed = ""
-            if converged and self._lookahead_used:  # a majorant's direction: the next iteration, exact, judges
-                converged, self._lookahead = False, False
+            if within_tol and not converged:  # a majorant's direction: the next iteration, exact, judges
                 res.unconfirmed = "its direction came from the contact look-ahead's majorant, not yet confirmed"
             if converged and not tools and s.contact_pattern is not None and s.contact_pattern.last_folded:
                 # the matrix was a folded majorant: judge convergence on the exact Newton direction
@@ -653,14 +649,13 @@ class StepSolver:
             if accepted:
                 x, ev, energy, el, bar = trial
                 res.alphas.append(alpha)
-                # on while CCD keeps cutting the moves short, off again after a move it lets through; never while
-                # kinematic tools move: their bordered system (_direction_with_tools) couples a tool to the body
-                # through the exact contact Hessian only, so look-ahead blocks would stiffen the body's side of a
-                # pair and not the tool's, and the tool would press the body without it giving way (a plate
+                # on while CCD keeps cutting the moves short, off again after a move it lets through, and for the
+                # rest of the solve once it alternates futilely with exact directions (idp.solver.lookahead); never
+                # while kinematic tools move: their bordered system (_direction_with_tools) couples a tool to the
+                # body through the exact contact Hessian only, so look-ahead blocks would stiffen the body's side of
+                # a pair and not the tool's, and the tool would press the body without it giving way (a plate
                 # squashing a ball: blocked after one step, gaps crushed to ~1e-10; docs/handles.md)
-                self._lookahead = (
-                    cfg.contact_lookahead > 1.0 and alpha_ccd < LOOKAHEAD_TRIGGER and ev is not None and not tools
-                )
+                self._lookahead.after_step(alpha_ccd, self._lookahead_used, ev is not None and not tools)
             else:
                 res.alphas.append(0.0)
                 if not converged:
