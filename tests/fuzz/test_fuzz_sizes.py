@@ -61,7 +61,8 @@ print(json.dumps({"outcome": outcome, "message": message[:400], "seconds": secon
 """
 
 
-def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB) -> dict:
+def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB, quick_s: float | None = QUICK_S) -> dict:
+    """One case in its own process; ``quick_s``: the wall time it must stay under (None: judged by the caller)."""
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.run(
         [sys.executable, "-c", HARNESS, reader, str(path), str(budget_mb)],
@@ -72,12 +73,12 @@ def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB) -> dict:
     )
     assert proc.returncode == 0, f"{reader} {path.name}: exit {proc.returncode}\n{proc.stderr[-3000:]}"
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert result["seconds"] < QUICK_S, result
+    assert quick_s is None or result["seconds"] < quick_s, result
     return result
 
 
-def refused(reader: str, path: Path, match: str = "") -> dict:
-    result = run_case(reader, path)
+def refused(reader: str, path: Path, match: str = "", quick_s: float | None = QUICK_S) -> dict:
+    result = run_case(reader, path, quick_s=quick_s)
     assert result["outcome"] == "IdpError", result
     assert match in result["message"], result
     return result
@@ -169,15 +170,23 @@ def test_scene_nested_1e5_deep(tmp_path, kind):
 
 
 def test_scene_1e5_handles(tmp_path):
-    """10^5 handles (a 10 MB JSON file): validated in linear time (duplicate names were found in quadratic time)."""
-    handles = [
-        {"name": f"h{i}", "select": {"indices": [0]}, "motion": {"type": "translate", "velocity": [0, 0, 0]}}
-        for i in range(10**5)
-    ]
-    handles.append(dict(handles[7]))
-    p = tmp_path / "s.json"
-    p.write_text(json.dumps({"objects": [{"name": "o", "generate": {"shape": "ball"}, "handles": handles}]}))
-    refused("scene", p, match="duplicate handle name 'h7'")
+    """10^5 handles (a 10 MB JSON file): validated in linear time (duplicate names were found in quadratic time).
+
+    Judged by how the time grows from 10^4 to 10^5 handles, not by a wall-clock bound: validating 10^5 handles
+    alone takes 5–10 s on the 2-core VM when a second test run shares it (10.35 s once, over the 10 s that a
+    fixed bound allowed). Linear time grows ~10×; the quadratic duplicate search grew 100× (and ran into the
+    per-case timeout at 10^5)."""
+    seconds = {}
+    for n in (10**4, 10**5):
+        handles = [
+            {"name": f"h{i}", "select": {"indices": [0]}, "motion": {"type": "translate", "velocity": [0, 0, 0]}}
+            for i in range(n)
+        ]
+        handles.append(dict(handles[7]))
+        p = tmp_path / f"s{n}.json"
+        p.write_text(json.dumps({"objects": [{"name": "o", "generate": {"shape": "ball"}, "handles": handles}]}))
+        seconds[n] = refused("scene", p, match="duplicate handle name 'h7'", quick_s=None)["seconds"]
+    assert seconds[10**5] < 30.0 * seconds[10**4], seconds
 
 
 def test_scene_1e5_bad_entries(tmp_path):
