@@ -33,10 +33,19 @@ def _set_threads(n: int | None) -> None:
     The environment variables reach libraries that load later (and child processes). numba and the OpenBLAS pools
     read their counts when they load, so where a caller loaded them before ``main`` (a script that imports numpy,
     scipy or numba first) they are set directly too; before, such a caller's ``--threads 1`` left numba and
-    CHOLMOD's BLAS on every core."""
+    CHOLMOD's BLAS on every core.
+
+    Once numba's pool has started in this process its size is fixed, and numba re-reads ``NUMBA_NUM_THREADS`` from
+    the environment at every compile: a different value there made the next kernel compiled in the process fail
+    ("Cannot set NUMBA_NUM_THREADS to a different value once the threads have been launched"; a second ``main``
+    call with another ``--threads`` in one process, on a cold kernel cache). So that variable is left as it is then,
+    and the count applies through :func:`numba.set_num_threads` (at most the pool's size)."""
     if not n:
         return
+    pool_started = bool(getattr(sys.modules.get("numba.np.ufunc.parallel"), "_is_initialized", False))
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        if var == "NUMBA_NUM_THREADS" and pool_started:
+            continue
         os.environ[var] = str(n)
     import ipctk
 
