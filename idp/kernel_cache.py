@@ -231,6 +231,13 @@ GROUPS: dict[str, tuple[Kernel, ...]] = {
             " float64, int64, float64, float64[::1], float64[::1], float64[::1])",
             4.0,
         ),
+        Kernel(  # conservative advancement: pairs far closer than their move, and nearly touching pairs
+            "idp.contact.near_contact_ccd",
+            "_advance_all",
+            "(float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], float64, float64, int64, float64[::1])",
+            12.7,
+            alternative=True,  # only once such a pair appears (the demo's first 9 steps have none)
+        ),
     ),
     # 3D contact (either barrier): the crossing edge/triangle pairs (idp.contact.intersections), checked on the input
     # when the scene is built and by every frame's certificate

@@ -8,6 +8,8 @@ inside ``BarrierPotential`` (rebuilt when κ changes).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
@@ -53,6 +55,39 @@ def make_ccd(name: str):
 BARRIERS = ("compiled", "ipctk")
 NEAR_CONTACT = 1e-4  # gaps below NEAR_CONTACT·d̂: additive CCD plus conservative advancement of those pairs
 NEAR_KEEP = 0.1  # ... each keeping 10 % of its gap (the reference keeps 10 % of every gap)
+#: A candidate whose gap at the start of a move is below this share of its relative move (M of
+#: :mod:`idp.contact.ccd_filter`) is checked by conservative advancement with exact distances instead of the
+#: narrow phase, keeping the gap share the narrow phase would keep. Tight Inclusion on such pairs is slow and
+#: answers far too early: one edge–edge pair of the beam loop in tests/stepper/test_handles.py, crossing edges
+#: 1.1e-7 apart whose relative move of 0.022 takes them apart (4e-6 at mid-move), cost 5.7 s and returned
+#: α = 0.049 (tolerance 1e-4 to 1e-6, 1e4 to 1e6 iterations alike); the same pair shifted to 3e-6, 1e-5 and
+#: 1e-4 apart: 2.7 s (α = 0.37), 0.38 s and 0.016 s (no contact). Advancement costs about 2/share distance
+#: evaluations a pair at this share (microseconds).
+TIGHT_GAP_SHARE = 1e-2
+
+
+@contextmanager
+def serial_narrow_phase() -> Iterator[None]:
+    """Run ipctk's narrow phase on one thread, so that a CCD step depends on its inputs alone.
+
+    ipctk's ``compute_collision_free_stepsize`` checks its pairs on TBB threads that share the earliest time of
+    impact found so far, and passes it to each next pair as the end of the interval to search; Tight Inclusion's
+    answer for a pair depends on that end (its interval splitting starts from it), so with more than one thread
+    the step depended on the schedule: the beam loop of tests/stepper/test_handles.py took one of two Newton
+    paths from run to run (step 26: 43 or 45 iterations, the first in 5 of 14 runs on ipctk's 2 threads, numba on
+    one, ``PYTHONHASHSEED`` fixed or not; the same in 6 of 6 with ipctk on one thread), and a run resumed from a
+    checkpoint need not be the run uninterrupted. On one thread the pairs go in
+    idp's order (by increasing first possible contact, :func:`idp.contact.ccd_filter.ccd_order`), which hands the
+    early times of impact to the later pairs as the threads did."""
+    threads = ipctk.get_num_threads()
+    if threads == 1:
+        yield
+        return
+    ipctk.set_num_threads(1)
+    try:
+        yield
+    finally:
+        ipctk.set_num_threads(threads)
 
 
 @dataclass
@@ -585,10 +620,13 @@ class ContactModel:
                 ev = ev if ev is not None else self.evaluate(x0)
                 current_min_distance = self.min_distance(ev)
             ccd, near_contact = self._choose_ccd(current_min_distance)
-            if candidates is not None:
-                alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
-            else:
-                alpha = float(ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd))
+            with serial_narrow_phase():
+                if candidates is not None:
+                    alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
+                else:
+                    alpha = float(
+                        ipctk.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, self.broad_phase(), ccd)
+                    )
             if near_contact:
                 alpha = min(alpha, self._near_pair_step_bound(v0, v1, ev if ev is not None else self.evaluate(x0)))
             return alpha
@@ -675,12 +713,23 @@ class ContactModel:
         nf = fv.shape[0]
 
         def narrow_phase(idx: np.ndarray) -> float:
+            alpha = 1.0
+            tight = bounds[0][idx] < TIGHT_GAP_SHARE * bounds[1][idx]  # (TIGHT_GAP_SHARE)
+            if tight.any():
+                from idp.contact.near_contact_ccd import candidate_pairs, conservative_step
+
+                pairs, is_pt = candidate_pairs(self._edges, self._faces, fv, ee, idx[tight])
+                alpha = conservative_step(v0, v1, pairs, is_pt, alpha_max=1.0, keep=1.0 - rescaling)
+                idx = idx[~tight]
+            if idx.size == 0:
+                return alpha
             c = ipctk.Candidates()
             sel = fv[idx[idx < nf]]
             c.fv_candidates = list(map(ipctk.FaceVertexCandidate, sel[:, 0].tolist(), sel[:, 1].tolist()))
             sel = ee[idx[idx >= nf] - nf]
             c.ee_candidates = list(map(ipctk.EdgeEdgeCandidate, sel[:, 0].tolist(), sel[:, 1].tolist()))
-            return float(c.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
+            with serial_narrow_phase():
+                return min(alpha, float(c.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd)))
 
         def refine(idx: np.ndarray, limit: float) -> np.ndarray:
             return ccd_filter.refine(idx, limit, v0, v1, self._faces, self._edges, fv, ee, rescaling, bounds)

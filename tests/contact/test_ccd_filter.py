@@ -182,3 +182,71 @@ def test_non_finite_move_is_not_filtered_away():
     pairs, _ = _pairs(cm, fv, ee)
     touched = (pairs == 0).any(axis=1)
     assert touched.any() and (first[touched] == 0.0).all()
+
+
+# Two crossing edges of the beam loop in tests/stepper/test_handles.py (the move of one CCD call of its step 27),
+# 1.1e-7 apart, whose relative move of 0.022 first takes them to within 2e-11 of each other at α ≈ 0.062, then
+# apart; each edge closes a triangle with a third vertex 0.02 off its side.
+_CROSSING = np.array(
+    [
+        [-0.00540823743246664, 0.5631345969988345, 0.04987107948878522],
+        [0.0141480733214267, 0.5465055693606399, 0.04658645233797219],
+        [0.04131547390331047, 0.5282491534262498, 0.03568727532513082],
+        [-0.01307341920397079, 0.5673376763609943, 0.0541863754714549],
+    ]
+)
+_CROSSING_MOVE = np.array(
+    [
+        [0.00417188448453696, -0.00344684261261363, -0.00084939367701201],
+        [0.01768668264939343, -0.0100121858551474, -0.00949316091780533],
+        [0.00667359860721947, -0.0014579470413012, -0.00661571171312076],
+        [-0.01525121223825092, 0.00868313368373053, 0.00818187234377172],
+    ]
+)
+
+
+def test_a_pair_far_closer_than_its_move_gets_the_step_its_exact_gaps_allow():
+    """Tight Inclusion answered α = 0.049 for this pair after 5.7 s; its exact gaps fall to the kept share of
+    d(0) only at α ≈ 0.062. Such a pair (gap below TIGHT_GAP_SHARE of its move) is advanced with exact
+    distances: the step keeps that share along the whole move and reaches within 10 % of it."""
+    from idp.contact import model
+
+    n = np.cross(_CROSSING[1] - _CROSSING[0], _CROSSING[3] - _CROSSING[2])
+    n /= np.linalg.norm(n)
+    n = n if n @ (_CROSSING[:2].mean(axis=0) - _CROSSING[2:].mean(axis=0)) > 0 else -n
+    x = np.vstack([_CROSSING[:2], _CROSSING[:2].mean(axis=0) + 0.02 * n, _CROSSING[2:]])
+    x = np.vstack([x, _CROSSING[2:].mean(axis=0) - 0.02 * n])
+    move = np.vstack([_CROSSING_MOVE[:2], _CROSSING_MOVE[:2].mean(axis=0)])
+    move = np.vstack([move, _CROSSING_MOVE[2:], _CROSSING_MOVE[2:].mean(axis=0)])
+    cm = ContactModel(x, np.array([[0, 1, 2], [3, 4, 5]]), 6, 1e-3)
+    pair, is_pt = np.array([[0, 1, 3, 4]]), np.array([False])
+    d0 = float(pair_distances(x, pair, is_pt)[0])
+    assert d0 < 1e-6  # far closer than its move of 0.022
+    alpha = cm.max_collision_free_step(x, x + move)
+    keep = (1.0 - model.TI_CONSERVATIVE_RESCALING) * d0
+    ts = np.linspace(0.0, 0.1, 4001)
+    gaps = np.array([pair_distances(x + t * move, pair, is_pt)[0] for t in ts])
+    reach = ts[np.argmax(gaps < keep)]  # first sample below the kept share
+    arrived = ts[np.argmax(gaps < 1.1 * keep)]
+    assert arrived - 1e-4 <= alpha <= reach
+    assert pair_distances(x + alpha * move, pair, is_pt)[0] >= keep * (1 - 1e-9)
+    assert not cm.has_intersections(x + alpha * move)
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_the_step_does_not_depend_on_ipctk_threads(name):
+    """ipctk's narrow phase hands the earliest time of impact found so far to the next pairs, so on several
+    threads its step depended on the schedule; idp runs it on one (idp.contact.model.serial_narrow_phase) and
+    leaves ipctk's thread count as it found it."""
+    x, y, surf, nd = _moved(name, 0.03, 5)
+    before = ipctk.get_num_threads()
+    steps = []
+    try:
+        for threads in (2, 1, 2):
+            ipctk.set_num_threads(threads)
+            cm = ContactModel(x, surf, nd, 0.05)
+            steps.append(cm.max_collision_free_step(x, y))
+            assert ipctk.get_num_threads() == threads
+    finally:
+        ipctk.set_num_threads(before)
+    assert steps[0] < 1.0 and steps[0] == steps[1] == steps[2]  # identical by construction: one thread each time

@@ -38,6 +38,21 @@ def test_approaching_point_keeps_half_its_gap(gap):
     assert _min_gap_along(V0, V1, pairs, is_pt, alpha) >= 0.5 * gap * (1 - 1e-6)
 
 
+@pytest.mark.parametrize("gap", [1e-4, 1e-5])
+def test_a_pair_gliding_onto_its_floor_stops_within_a_tenth_of_it(gap):
+    """A point gliding down onto a triangle at a shallow angle (closing 1.5 gaps while sliding 0.5) approaches
+    the gap it must keep in ever smaller advances; it stops once within ARRIVED of that floor, never below it."""
+    from idp.contact.near_contact_ccd import ARRIVED
+
+    move = np.array([0.5, 0.0, -1.5 * gap])
+    V0, V1, pairs, is_pt = _point_over_triangle(gap, move, where=(0.1, 0.3))
+    alpha = conservative_step(V0, V1, pairs, is_pt)  # keeps half the gap: reached at α = 1/3
+    floor = 0.5 * gap
+    end = pair_distances(V0 + alpha * (V1 - V0), pairs, is_pt)[0]
+    assert floor * (1 - 1e-6) <= end <= ARRIVED * floor
+    assert _min_gap_along(V0, V1, pairs, is_pt, alpha) >= floor * (1 - 1e-6)
+
+
 def test_crossing_edges_stop_before_they_touch():
     gap = 1e-9
     V0 = np.array([[-1.0, 0.0, gap], [1.0, 0.0, gap], [0.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
