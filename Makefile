@@ -62,21 +62,27 @@ $(STAMP): $(CORE)
 demo: $(CORE)
 	$(BIN)/idp demo -o out/demo
 
+# the suite on up to 4 worker processes (pytest-xdist), each taking a whole test file at a time (a module's fixtures
+# stay in one process): 414 s against 753 s in one process on the 2-core AMD EPYC VM (docs/benchmarks.md, "Test
+# suite time"). TEST_WORKERS=0 runs it in this process.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
+PARALLEL = -n $(TEST_WORKERS) --dist loadfile
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(PARALLEL)
 
 # The tests that run compiled (numba) kernels, once on baseline code paths — numba compiling for its generic
 # x86-64 CPU (no FMA/AVX), OpenBLAS's Nehalem kernels and numpy's baseline loops (their exp/log/power differ
-# in the last bits from the AVX-512 ones) — and once single-threaded: results must not depend on the CPU or
-# the thread count. numba's disk cache is keyed by CPU name, so the first run recompiles every kernel.
+# in the last bits from the AVX-512 ones) — and once single-threaded (each worker process): results must not
+# depend on the CPU or the thread count. numba's disk cache is keyed by CPU name, so the first run recompiles every kernel.
 PORTABLE_TESTS := tests/contact tests/energies tests/solver tests/stepper tests/mesh
 
 test-portable: $(STAMP)
 	features="$$($(BIN)/python .ci/numpy_dispatched_features.py)" && \
 	NUMBA_CPU_NAME=generic OPENBLAS_CORETYPE=Nehalem NPY_DISABLE_CPU_FEATURES="$$features" \
-	$(BIN)/python -m pytest -q $(PORTABLE_TESTS)
+	$(BIN)/python -m pytest -q $(PARALLEL) $(PORTABLE_TESTS)
 	NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
-	$(BIN)/python -m pytest -q $(PORTABLE_TESTS)
+	$(BIN)/python -m pytest -q $(PARALLEL) $(PORTABLE_TESTS)
 
 # A longer bug hunt than make test's fixed draws: new random inputs on every run (not in CI, which must pass or
 # fail the same way on every clean clone); pin what it finds as a regression test in tests/fuzz.
