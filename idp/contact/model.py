@@ -76,9 +76,9 @@ def serial_narrow_phase() -> Iterator[None]:
     the step depended on the schedule: the beam loop of tests/stepper/test_handles.py took one of two Newton
     paths from run to run (step 26: 43 or 45 iterations, the first in 5 of 14 runs on ipctk's 2 threads, numba on
     one, ``PYTHONHASHSEED`` fixed or not; the same in 6 of 6 with ipctk on one thread), and a run resumed from a
-    checkpoint need not be the run uninterrupted. On one thread the pairs go in
-    idp's order (by increasing first possible contact, :func:`idp.contact.ccd_filter.ccd_order`), which hands the
-    early times of impact to the later pairs as the threads did."""
+    checkpoint need not be the run uninterrupted. On one thread the pairs go in idp's order (by increasing first
+    possible contact, :func:`idp.contact.ccd_filter.ccd_order`), which hands the early times of impact to the later
+    pairs as the threads did."""
     threads = ipctk.get_num_threads()
     if threads == 1:
         yield
@@ -714,7 +714,7 @@ class ContactModel:
 
         def narrow_phase(idx: np.ndarray) -> float:
             alpha = 1.0
-            tight = bounds[0][idx] < TIGHT_GAP_SHARE * bounds[1][idx]  # (TIGHT_GAP_SHARE)
+            tight = bounds[0][idx] < TIGHT_GAP_SHARE * bounds[1][idx]  # d(0) < share·M: exact advancement
             if tight.any():
                 from idp.contact.near_contact_ccd import candidate_pairs, conservative_step
 
