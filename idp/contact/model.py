@@ -67,18 +67,23 @@ TIGHT_GAP_SHARE = 1e-2
 
 
 @contextmanager
-def serial_narrow_phase() -> Iterator[None]:
-    """Run ipctk's narrow phase on one thread, so that a CCD step depends on its inputs alone.
+def one_ipctk_thread() -> Iterator[None]:
+    """Run the ipctk calls inside on one thread, so that what they return depends on their inputs alone.
 
-    ipctk's ``compute_collision_free_stepsize`` checks its pairs on TBB threads that share the earliest time of
-    impact found so far, and passes it to each next pair as the end of the interval to search; Tight Inclusion's
-    answer for a pair depends on that end (its interval splitting starts from it), so with more than one thread
-    the step depended on the schedule: the beam loop of tests/stepper/test_handles.py took one of two Newton
-    paths from run to run (step 26: 43 or 45 iterations, the first in 5 of 14 runs on ipctk's 2 threads, numba on
-    one, ``PYTHONHASHSEED`` fixed or not; the same in 6 of 6 with ipctk on one thread), and a run resumed from a
-    checkpoint need not be the run uninterrupted. On one thread the pairs go in idp's order (by increasing first
-    possible contact, :func:`idp.contact.ccd_filter.ccd_order`), which hands the early times of impact to the later
-    pairs as the threads did."""
+    The CCD narrow phase: ipctk's ``compute_collision_free_stepsize`` checks its pairs on TBB threads that share the
+    earliest time of impact found so far, and passes it to each next pair as the end of the interval to search;
+    Tight Inclusion's answer for a pair depends on that end (its interval splitting starts from it), so with more
+    than one thread the step depended on the schedule: the beam loop of tests/stepper/test_handles.py took one of
+    two Newton paths from run to run (step 26: 43 or 45 iterations, the first in 5 of 14 runs on ipctk's 2 threads,
+    numba on one, ``PYTHONHASHSEED`` fixed or not; the same in 6 of 6 with ipctk on one thread), and a run resumed
+    from a checkpoint need not be the run uninterrupted. On one thread the pairs go in idp's order (by increasing
+    first possible contact, :func:`idp.contact.ccd_filter.ccd_order`), which hands the early times of impact to the
+    later pairs as the threads did.
+
+    The barrier without the compiled path (2D, ``barrier = "ipctk"``): ipctk builds its collision set and candidates
+    on its threads (so their order follows the schedule) and sums the barrier's value, gradient and Hessian over
+    per-thread parts, so the last bits depended on the schedule (tests/contact/test_barrier_threads.py: 9
+    values, 14 gradients, 19 Hessians in 20 evaluations of one configuration on two threads)."""
     threads = ipctk.get_num_threads()
     if threads == 1:
         yield
@@ -261,7 +266,8 @@ class ContactModel:
                 pairs.append(([int(i) for i in self._edges[a]], [int(i) for i in self._edges[b]]))
         else:
             c = ipctk.NormalCollisions()
-            c.build(self.mesh, vs, float(tolerance) + 1e-300, 0.0, self.broad_phase())
+            with one_ipctk_thread():
+                c.build(self.mesh, vs, float(tolerance) + 1e-300, 0.0, self.broad_phase())
             E, F = self.mesh.edges, self.mesh.faces
             for i in range(len(c)):
                 ids = [int(j) for j in c[i].vertex_ids(E, F) if j >= 0]
@@ -361,10 +367,11 @@ class ContactModel:
             self._last_evaluation = (self._evaluation_inputs(), ev)
             return ev
         c = ipctk.NormalCollisions()
-        if candidates is not None:
-            c.build(candidates, self.mesh, vs, self.dhat, 0.0)
-        else:
-            c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
+        with one_ipctk_thread():
+            if candidates is not None:
+                c.build(candidates, self.mesh, vs, self.dhat, 0.0)
+            else:
+                c.build(self.mesh, vs, self.dhat, 0.0, self.broad_phase())
         return ContactEvaluation(c, vs, len(c))
 
     def _evaluation_inputs(self) -> tuple:
@@ -444,7 +451,8 @@ class ContactModel:
                 still |= self._still
             return self._candidates(v0, v1, still=still)
         cand = ipctk.Candidates()
-        cand.build(self.mesh, self.surface_positions(x0), self.surface_positions(x1), self.dhat, self.broad_phase())
+        with one_ipctk_thread():
+            cand.build(self.mesh, self.surface_positions(x0), self.surface_positions(x1), self.dhat, self.broad_phase())
         return cand
 
     def potential(self, kappa: float | None = None):
@@ -458,7 +466,8 @@ class ContactModel:
             return 0.0
         if self.compiled:
             return self._cb.barrier_value(ev.collisions, ev.surface_positions, self.dhat, self.kappa)
-        return float(self.potential()(ev.collisions, self.mesh, ev.surface_positions))
+        with one_ipctk_thread():
+            return float(self.potential()(ev.collisions, self.mesh, ev.surface_positions))
 
     def gradient(self, ev: ContactEvaluation, kappa: float | None = None) -> np.ndarray:
         """Gradient on collision-mesh DOFs (interleaved)."""
@@ -468,7 +477,8 @@ class ContactModel:
             return self._cb.barrier_gradient(
                 ev.collisions, ev.surface_positions, self.dhat, self.kappa if kappa is None else kappa
             )
-        return np.asarray(self.potential(kappa).gradient(ev.collisions, self.mesh, ev.surface_positions))
+        with one_ipctk_thread():
+            return np.asarray(self.potential(kappa).gradient(ev.collisions, self.mesh, ev.surface_positions))
 
     def hessian(self, ev: ContactEvaluation, project: bool = True) -> sp.csc_matrix:
         """Hessian on collision-mesh DOFs; ``project`` clamps each collision's eigenvalues at 0 (PSD)."""
@@ -480,7 +490,8 @@ class ContactModel:
             rows, cols, vals = self._cb.blocks_to_coo(bv, blocks, self.dim)
             return sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
         method = ipctk.PSDProjectionMethod.CLAMP if project else ipctk.PSDProjectionMethod.NONE
-        return self.potential().hessian(ev.collisions, self.mesh, ev.surface_positions, method)
+        with one_ipctk_thread():
+            return self.potential().hessian(ev.collisions, self.mesh, ev.surface_positions, method)
 
     def hessian_blocks(self, ev: ContactEvaluation, vertex_map: np.ndarray, project: bool = True):
         """Compiled barrier only: per-collision Hessian blocks restricted to the vertices with
@@ -620,7 +631,7 @@ class ContactModel:
                 ev = ev if ev is not None else self.evaluate(x0)
                 current_min_distance = self.min_distance(ev)
             ccd, near_contact = self._choose_ccd(current_min_distance)
-            with serial_narrow_phase():
+            with one_ipctk_thread():
                 if candidates is not None:
                     alpha = float(candidates.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd))
                 else:
@@ -728,7 +739,7 @@ class ContactModel:
             c.fv_candidates = list(map(ipctk.FaceVertexCandidate, sel[:, 0].tolist(), sel[:, 1].tolist()))
             sel = ee[idx[idx >= nf] - nf]
             c.ee_candidates = list(map(ipctk.EdgeEdgeCandidate, sel[:, 0].tolist(), sel[:, 1].tolist()))
-            with serial_narrow_phase():
+            with one_ipctk_thread():
                 return min(alpha, float(c.compute_collision_free_stepsize(self.mesh, v0, v1, 0.0, ccd)))
 
         def refine(idx: np.ndarray, limit: float) -> np.ndarray:

@@ -288,3 +288,43 @@ def test_a_killed_staged_run_resumes_to_the_uninterrupted_bytes(tmp_path, kill_a
     assert sorted(again) == sorted(whole) and any(name.startswith("final/") for name in whole)
     assert [name for name in whole if whole[name] != again[name]] == []
     assert not _leftovers(tmp_path / "killed")
+
+
+DISK_2D = {  # a 2D disk grown against a fixed ring: ipctk evaluates the barrier (2D has no compiled path)
+    "name": "disk2d",
+    "dim": 2,
+    "time": {"h": 0.0016, "steps": 12},
+    "objects": [
+        {
+            "name": "disk",
+            "generate": {"shape": "disk", "radius": 0.3, "resolution": 4},
+            "translate": [0.1, 0.0],
+            "rest_shape": {"growth_rate": 0.2, "growth_steps": 12},
+        },
+        {"name": "ring", "kind": "obstacle", "generate": {"shape": "circle_polygon", "radius": 0.5, "segments": 48}},
+    ],
+}
+
+
+def test_a_killed_2d_contact_run_resumes_to_the_uninterrupted_bytes(tmp_path):
+    """ipctk builds the 2D collision set and sums the barrier; on its threads the last bits followed the schedule
+    (1 of 4 uninterrupted runs of this scene ended with other bytes) until those calls ran on one thread
+    (idp.contact.model.one_ipctk_thread)."""
+    scene = tmp_path / "disk.json"
+    scene.write_text(json.dumps(DISK_2D))
+
+    def run(out: Path, *extra: str, kill: str | None = None) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "idp", "run", str(scene), "-o", str(out), "-q", "--threads", "2", *extra]
+        env = dict(ENV, IDP_KILL_AT=kill) if kill else ENV
+        return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+
+    assert run(tmp_path / "whole").returncode == 0
+    whole_stats = _stats(tmp_path / "whole")
+    assert max(s.get("contacts", 0) for s in whole_stats["steps"]) > 0  # the disk meets the ring
+    killed = run(tmp_path / "killed", kill="newton:40")
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert run(tmp_path / "killed", "--resume").returncode == 0
+    whole, again = _outputs(tmp_path / "whole"), _outputs(tmp_path / "killed")
+    assert sorted(again) == sorted(whole) and len(whole) >= 12
+    assert [name for name in whole if whole[name] != again[name]] == []
+    assert _stats(tmp_path / "killed") == whole_stats

@@ -236,7 +236,7 @@ def test_a_pair_far_closer_than_its_move_gets_the_step_its_exact_gaps_allow():
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_the_step_does_not_depend_on_ipctk_threads(name):
     """ipctk's narrow phase hands the earliest time of impact found so far to the next pairs, so on several
-    threads its step depended on the schedule; idp runs it on one (idp.contact.model.serial_narrow_phase) and
+    threads its step depended on the schedule; idp runs it on one (idp.contact.model.one_ipctk_thread) and
     leaves ipctk's thread count as it found it."""
     x, y, surf, nd = _moved(name, 0.03, 5)
     before = ipctk.get_num_threads()
