@@ -172,24 +172,7 @@ ENTRIES = """
 SCENES = {
     # contacts from step 8 on
     "demo": lambda: _demo(steps=9),
-    "disk_2d": lambda: {
-        "name": "disk2d",
-        "dim": 2,
-        "time": {"h": 0.0016, "steps": 6},
-        "objects": [
-            {
-                "name": "disk",
-                "generate": {"shape": "disk", "radius": 0.3, "resolution": 4},
-                "translate": [0.1, 0.0],
-                "rest_shape": {"growth_rate": 0.2, "growth_steps": 6},
-            },
-            {
-                "name": "ring",
-                "kind": "obstacle",
-                "generate": {"shape": "circle_polygon", "radius": 0.5, "segments": 48},
-            },
-        ],
-    },
+    "disk_2d": lambda: json.loads((Path(__file__).parent / "scenes" / "disk_in_ring_2d.json").read_text()),
     "ball_in_shell": lambda: {
         "name": "shell3d",
         "time": {"h": 0.0016, "steps": 4},

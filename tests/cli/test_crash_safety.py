@@ -290,28 +290,19 @@ def test_a_killed_staged_run_resumes_to_the_uninterrupted_bytes(tmp_path, kill_a
     assert not _leftovers(tmp_path / "killed")
 
 
-DISK_2D = {  # a 2D disk grown against a fixed ring: ipctk evaluates the barrier (2D has no compiled path)
-    "name": "disk2d",
-    "dim": 2,
-    "time": {"h": 0.0016, "steps": 12},
-    "objects": [
-        {
-            "name": "disk",
-            "generate": {"shape": "disk", "radius": 0.3, "resolution": 4},
-            "translate": [0.1, 0.0],
-            "rest_shape": {"growth_rate": 0.2, "growth_steps": 12},
-        },
-        {"name": "ring", "kind": "obstacle", "generate": {"shape": "circle_polygon", "radius": 0.5, "segments": 48}},
-    ],
-}
+def _disk_in_ring_2d(steps: int) -> dict:
+    """A 2D disk grown against a fixed ring (tests/scenes/): ipctk evaluates the barrier (2D has no compiled path)."""
+    doc = json.loads((Path(__file__).parents[1] / "scenes" / "disk_in_ring_2d.json").read_text())
+    doc["time"]["steps"] = doc["objects"][0]["rest_shape"]["growth_steps"] = steps
+    return doc
 
 
 def test_a_killed_2d_contact_run_resumes_to_the_uninterrupted_bytes(tmp_path):
     """ipctk builds the 2D collision set and sums the barrier; on its threads the last bits followed the schedule
-    (1 of 4 uninterrupted runs of this scene ended with other bytes) until those calls ran on one thread
+    (3 of 4 runs killed and resumed like this ended with other bytes) until those calls ran on one thread
     (idp.contact.model.one_ipctk_thread)."""
     scene = tmp_path / "disk.json"
-    scene.write_text(json.dumps(DISK_2D))
+    scene.write_text(json.dumps(_disk_in_ring_2d(12)))
 
     def run(out: Path, *extra: str, kill: str | None = None) -> subprocess.CompletedProcess:
         cmd = [sys.executable, "-m", "idp", "run", str(scene), "-o", str(out), "-q", "--threads", "2", *extra]
