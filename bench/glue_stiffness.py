@@ -23,6 +23,7 @@ import sys
 import time
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -54,11 +55,10 @@ def measure(stats: dict, run: Path) -> dict:
         return max(s["sticky"]["max_link_stretch"] for s in steps if a <= s["step"] <= b)
 
     ck = np.load(run / "checkpoint.npz")
-    import meshio
-
+    glue = next(k[: -len("rest_lengths")] for k in ck.files if k.endswith("__rest_lengths"))  # the sticky condition's
+    pairs, rest = ck[glue + "pairs"], ck[glue + "rest_lengths"]
     last = sorted((run / "vtu").glob("frame_*.vtu"))[-1]
     x = meshio.read(last).points
-    pairs, rest = ck["cond0__pairs"], ck["cond0__rest_lengths"]
     stretch = np.abs(np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1) - rest)
     return {
         "links": int(pairs.shape[0]),
