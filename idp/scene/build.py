@@ -556,6 +556,7 @@ def build_scene(
         contact_lookahead=contact_lookahead_reach(
             s.contact_lookahead, system.contact is not None and system.contact.compiled, bool(shells)
         ),
+        island_steps=s.island_steps,
     )
     o, t = scene.output, scene.time
     if repair is not None:

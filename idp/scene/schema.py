@@ -110,6 +110,9 @@ class SolverConfig(_Model):
     # docs/benchmarks.md, "Contact look-ahead"); the energy, line search, CCD and stopping rule are unchanged.
     # "auto": 2 with the compiled barrier when no shell deforms, else 0 (idp.solver.newton.contact_lookahead_reach)
     contact_lookahead: Literal["auto"] | float = "auto"
+    # bodies that cannot meet along a Newton move each take their own step length (compiled 3D barrier;
+    # idp.solver.islands, docs/benchmarks.md "Islands"); false: one step length for the whole move
+    island_steps: Bool = False
     # guards (docs/scene-reference.md, "Running on shared machines"): a step's wall-clock limit in seconds, and the
     # memory a step may use ("4G", "512M" with powers of 1024, or a number of bytes) on top of the memory available
     max_step_seconds: PosFloat | None = None

@@ -31,11 +31,13 @@ import scipy.sparse as sp
 
 from idp import interrupts
 from idp._faults import kill_point
+from idp.contact.near_contact_ccd import candidate_pairs
 from idp.energies._stencil_term import StencilTerm
 from idp.energies.term import max_step
 from idp.errors import CertificateError, SolverError
 from idp.solver.assembly import restrict_collision_hessian
 from idp.solver.held_reduction import HeldReduction, keeps_vertex_groups
+from idp.solver.islands import BodyLabels, body_labels, merge_labels
 from idp.solver.linear import LinearSolver, NotPositiveDefinite
 from idp.solver.lookahead import LOOKAHEAD_STIFFNESS, LOOKAHEAD_TRIGGER, LookaheadSwitch
 from idp.solver.memory import MemoryGuard, step_overhead_bytes
@@ -110,6 +112,8 @@ class NewtonSettings:
     memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
     # search matrices that also see contact pairs within this multiple of d̂ (0: off; StepSolver._derivatives)
     contact_lookahead: float = 0.0
+    # each island of bodies that cannot meet along a move gets its own step length (idp.solver.islands)
+    island_steps: bool = False
 
 
 @dataclass
@@ -130,6 +134,8 @@ class NewtonResult:
     pcg_iterations: int = 0  # CG iterations spent on exact directions after folded matrices
     exact_refactorizations: int = 0  # ... and factorisations where CG did not converge
     lookahead_iterations: int = 0  # iterations whose search matrix saw pairs beyond d̂ (contact_lookahead)
+    island_iterations: int = 0  # iterations whose islands took step lengths of their own (idp.solver.islands)
+    max_islands: int = 0  # the most islands with a move of their own in one iteration
     # why the last iteration's decrement, though within tol, did not end the solve ("" when it was above tol or
     # the solve converged): its direction came from a look-ahead majorant, or the step constraint changed or had
     # not settled (handles / targets still being pulled, κ_B doubled, a snap)
@@ -176,6 +182,8 @@ class StepSolver:
         self._cut_sweep = None  # sweep candidates of the last move CCD cut short (contact_lookahead)
         self._lookahead_used = False  # whether this iteration's search matrix held look-ahead blocks
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
+        self._labels: BodyLabels | None = None  # the step's bodies, when islands may take their own steps
+        self._islands_now = False  # whether this iteration's move may be split into islands
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
                 wt.term.inversion_eta = settings.inversion_eta
@@ -326,17 +334,96 @@ class StepSolver:
             x_end = x + (alpha * short) * P
             t = time.perf_counter()
             cand = s.contact.sweep_candidates(x, x_end, moving_only=ccd_only)
-            t1 = time.perf_counter()
-            alpha_ccd = s.contact.max_collision_free_step(x, x_end, cand, gap, ev)
-            if not ccd_only and alpha_ccd < LOOKAHEAD_TRIGGER and self.settings.contact_lookahead > 1.0:
-                self._cut_sweep = cand  # every pair that comes within d̂ on the whole move (contact_lookahead)
-            t2 = time.perf_counter()
-            cand = s.contact.line_search_candidates(cand, alpha_ccd)
-            res.timings["contact_build"] += t1 - t + time.perf_counter() - t2
-            res.timings["ccd"] += t2 - t1
+            res.timings["contact_build"] += time.perf_counter() - t
+            alpha_ccd, cand = self._ccd(x, x_end, cand, gap, ev, res, look_ahead=not ccd_only)
             alpha_ccd *= short
             alpha *= alpha_ccd
         return alpha, alpha_inv, alpha_ccd, cand
+
+    def _ccd(self, x, x_end, cand, gap, ev, res: NewtonResult, look_ahead: bool = True):
+        """(CCD α of the move x → x_end over the sweep candidates ``cand``, the candidates the line search's trials
+        need). ``look_ahead``: remember the sweep for the contact look-ahead when CCD cuts the move short."""
+        contact = self.system.contact
+        t1 = time.perf_counter()
+        alpha_ccd = contact.max_collision_free_step(x, x_end, cand, gap, ev)
+        if look_ahead and alpha_ccd < LOOKAHEAD_TRIGGER and self.settings.contact_lookahead > 1.0:
+            self._cut_sweep = cand  # every pair that comes within d̂ on the whole move (contact_lookahead)
+        t2 = time.perf_counter()
+        cand = contact.line_search_candidates(cand, alpha_ccd)
+        res.timings["contact_build"] += time.perf_counter() - t2
+        res.timings["ccd"] += t2 - t1
+        return alpha_ccd, cand
+
+    def _island_feasible(self, x, P, res: NewtonResult, ev):
+        """The move split into islands (:mod:`idp.solver.islands`): (α, inversion α, CCD α, line-search candidates,
+        move), the trials being x + α·move. Where two or more islands move, α = 1 and ``move`` is P with each
+        island's part scaled by the fraction its own inversion filter and CCD allow (the CCD α reported is the
+        smallest island's); where one does, the uniform move (``move`` is P). None where the move is not split
+        (fewer than two bodies move, or a pair is nearly touching): :meth:`_feasible` then."""
+        s, labels = self.system, self._labels
+        contact = s.contact
+        vlab = labels.vertex_label
+        moving = np.any(P != 0.0, axis=1) & (vlab >= 0)
+        if np.unique(vlab[moving]).size < 2:
+            return None
+        t = time.perf_counter()
+        a = np.ones(labels.num_labels)  # each body's inversion filter
+        alpha_inv = 1.0
+        for i, wt in enumerate(s.terms):
+            ai = max_step(wt.term, x, P)
+            if ai < 1.0:
+                a[labels.term_labels[i]] = np.minimum(a[labels.term_labels[i]], ai)
+                alpha_inv = min(alpha_inv, ai)
+        res.timings["line_search"] += time.perf_counter() - t
+        if not alpha_inv > 0.0:
+            return None
+        if ev is None:
+            ev = self._contact_eval(x, res)
+        gap = contact.min_distance(ev)
+        body_move = np.where(vlab >= 0, a[np.maximum(vlab, 0)], 0.0)[:, None] * P
+        t = time.perf_counter()
+        short = contact.near_contact_step_bound(x, x + body_move, gap)
+        res.timings["ccd"] += time.perf_counter() - t
+        if short < 1.0:  # a pair nearly touching: the uniform path shortens the whole move first
+            return None
+        t = time.perf_counter()
+        cand = contact.sweep_candidates(x, x + body_move)  # every pair each body's filtered move can bring near
+        fv, ee = cand
+        nf = fv.shape[0]
+        quads, _ = candidate_pairs(contact._edges, contact._faces, fv, ee, np.arange(nf + ee.shape[0]))
+        verts = contact.to_full[quads]
+        pair_labels = np.where(moving[verts], vlab[verts], -1)
+        num_islands, island_of_label = merge_labels(labels.num_labels, pair_labels, labels.term_labels)
+        v_island = np.where(vlab >= 0, island_of_label[np.maximum(vlab, 0)], -1)
+        v_island[~moving] = -1  # vertices the move leaves where they are belong to no island's move
+        islands = np.unique(v_island[v_island >= 0])
+        res.timings["contact_build"] += time.perf_counter() - t
+        if islands.size < 2:  # one island: the uniform move, over these candidates (a superset of its own)
+            alpha_ccd, cand = self._ccd(x, x + alpha_inv * P, cand, gap, ev, res)
+            return alpha_inv * alpha_ccd, alpha_inv, alpha_ccd, cand, P
+        island_alpha = np.ones(num_islands)
+        np.minimum.at(island_alpha, island_of_label, a)
+        has = pair_labels >= 0
+        first = pair_labels[np.arange(pair_labels.shape[0]), np.argmax(has, axis=1)]
+        pair_island = np.where(has.any(axis=1), island_of_label[np.maximum(first, 0)], -1)
+        still = pair_island < 0  # pairs no move changes: their barrier terms enter every trial unchanged
+        keep_fv, keep_ee = [fv[still[:nf]]], [ee[still[nf:]]]
+        alpha_ccd = 1.0
+        for c in islands:
+            x_end = x + np.where((v_island == c)[:, None], island_alpha[c] * P, 0.0)
+            sel = pair_island == c
+            ac, (f_c, e_c) = self._ccd(x, x_end, (fv[sel[:nf]], ee[sel[nf:]]), gap, ev, res, look_ahead=False)
+            keep_fv.append(f_c)
+            keep_ee.append(e_c)
+            island_alpha[c] *= ac
+            alpha_ccd = min(alpha_ccd, ac)
+        if alpha_ccd < LOOKAHEAD_TRIGGER and self.settings.contact_lookahead > 1.0:
+            self._cut_sweep = cand
+        res.island_iterations += 1
+        res.max_islands = max(res.max_islands, int(islands.size))
+        scale = np.where(v_island >= 0, island_alpha[np.maximum(v_island, 0)], 0.0)
+        line_cand = (np.concatenate(keep_fv), np.concatenate(keep_ee))
+        return 1.0, alpha_inv, alpha_ccd, line_cand, scale[:, None] * P
 
     def _closest(self, ev) -> float:
         """Distance of the closest pair within d̂ of a contact evaluation (inf: none, or no contact model)."""
@@ -354,21 +441,37 @@ class StepSolver:
     def _filtered_step(self, x, P, x_prev, energy, ev, res):
         """Largest step along P that is inversion-free (det-root filter) and collision-free (CCD), then
         halved until the step energy does not increase (plain decrease, as the reference); a full step is then
-        extended while that pays (``settings.extrapolate``, :meth:`_extrapolate`)."""
+        extended while that pays (``settings.extrapolate``, :meth:`_extrapolate`). Where bodies that cannot meet
+        move, each island's part of P is first cut by its own filters (:meth:`_island_feasible`) and the halving
+        applies to that move; where it finds no decrease, the uniform move is searched as without islands."""
         cfg = self.settings
-        alpha, alpha_inv, alpha_ccd, cand = self._feasible(x, P, res, ev)
+        split = self._island_feasible(x, P, res, ev) if self._islands_now else None
+        if split is None:
+            alpha, alpha_inv, alpha_ccd, cand = self._feasible(x, P, res, ev)
+            move = P
+        else:
+            alpha, alpha_inv, alpha_ccd, cand, move = split
+        # what the step α reports for island moves: the share of P the longest island's trial takes
+        share = 1.0 if move is P else float(np.abs(move).max() / max(float(np.abs(P).max()), 1e-300))
         while alpha > cfg.min_alpha:
-            xt = x + alpha * P
+            xt = x + alpha * move
             evt = self._contact_eval(xt, res, cand) if ev is not None else None
             t = time.perf_counter()
             et, elt, bt = self._energy(xt, x_prev, evt)
             res.timings["line_search"] += time.perf_counter() - t
             if et <= energy:
-                if alpha == 1.0 and self._may_extend and not any(a < 1.0 for a in res.ccd_alphas):
+                if alpha == 1.0 and move is P and self._may_extend and not any(a < 1.0 for a in res.ccd_alphas):
                     alpha, trial = self._extrapolate(x, P, x_prev, ev, (xt, evt, et, elt, bt), res)
                     return True, alpha, alpha_inv, alpha_ccd, trial
-                return True, alpha, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
+                return True, alpha * share, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
             alpha *= 0.5
+        if move is not P:  # no decrease along the islands' move: the uniform move, as without islands
+            res.island_iterations -= 1
+            self._islands_now = False
+            try:
+                return self._filtered_step(x, P, x_prev, energy, ev, res)
+            finally:
+                self._islands_now = True
         return False, 0.0, alpha_inv, alpha_ccd, None
 
     def _extrapolate(self, x, P, x_prev, ev, trial, res):
@@ -560,6 +663,10 @@ class StepSolver:
         self._held = None
         self._skip_stencils = {}
         self._lookahead = LookaheadSwitch(self.settings.contact_lookahead > 1.0)  # on after a step CCD cut short
+        self._labels = None
+        if self.settings.island_steps and s.contact is not None and s.contact.compiled:
+            labels = body_labels(s)
+            self._labels = labels if labels.num_labels >= 2 else None
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
         try:
@@ -642,6 +749,7 @@ class StepSolver:
 
             # feasible step: inversion filter, then CCD on the shortened step, then backtracking
             self._may_extend = cfg.extrapolate > 1.0 and not tools
+            self._islands_now = self._labels is not None and not tools  # a tool's one unknown couples its bodies
             accepted, alpha, alpha_inv, alpha_ccd, trial = self._filtered_step(x, P, x_prev, energy, ev, res)
             res.inversion_alphas.append(alpha_inv)
             res.decrements.append(res.decrement)

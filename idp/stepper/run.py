@@ -324,6 +324,8 @@ def run_simulation(
                     "pcg_iterations": res.pcg_iterations,
                     "exact_refactorizations": res.exact_refactorizations,
                     "lookahead_iterations": res.lookahead_iterations,
+                    "island_iterations": res.island_iterations,
+                    "max_islands": res.max_islands,
                     "contacts": res.num_contacts,
                     "kappa": res.kappa,
                     "energy": res.energy,
