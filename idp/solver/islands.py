@@ -16,6 +16,7 @@ every body they touch through one unknown, turn islands off for the iteration (s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +71,7 @@ def body_labels(system) -> BodyLabels:
     return BodyLabels(vertex_label, int(used.size), term_labels)
 
 
-def merge_labels(num_labels: int, groups: np.ndarray, joined: list[np.ndarray] = ()) -> tuple[int, np.ndarray]:
+def merge_labels(num_labels: int, groups: np.ndarray, joined: Sequence[np.ndarray] = ()) -> tuple[int, np.ndarray]:
     """Islands of labels joined by ``groups`` ((k, m) labels, −1 for none; every row's labels join one island)
     and by each array of ``joined`` (a term's labels: its value is one number, so its bodies move as one island).
     Returns (number of islands, island of each label)."""

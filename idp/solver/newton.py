@@ -361,6 +361,8 @@ class StepSolver:
         smallest island's); where one does, the uniform move (``move`` is P). None where the move is not split
         (fewer than two bodies move, or a pair is nearly touching): :meth:`_feasible` then."""
         s, labels = self.system, self._labels
+        if labels is None:
+            return None
         contact = s.contact
         vlab = labels.vertex_label
         moving = np.any(P != 0.0, axis=1) & (vlab >= 0)

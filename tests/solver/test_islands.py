@@ -58,7 +58,7 @@ def test_body_labels_give_each_body_its_label_and_obstacles_none():
     labels = body_labels(built.system)
     assert labels.num_labels == 2
     ids = {p.name: p.vertex_ids for p in built.system.parts}
-    for name, expect_one in (("ball_a", True), ("ball_b", True)):
+    for name in ("ball_a", "ball_b"):
         lab = np.unique(labels.vertex_label[ids[name]])
         assert lab.size == 1 and lab[0] >= 0, name
     assert np.unique(labels.vertex_label[ids["ball_a"]])[0] != np.unique(labels.vertex_label[ids["ball_b"]])[0]
