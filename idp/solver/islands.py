@@ -11,7 +11,7 @@ islands can meet: the broad phase of the whole move (boxes inflated by d̂) pair
 island's scaled move stays inside its own boxes.
 
 Only the compiled 3D barrier is handled (its candidates are plain (fv, ee) arrays); kinematic tools, which couple
-every body they touch through one unknown, turn islands off for the iteration (see ``StepSolver._filtered_step``).
+every body they touch through one unknown, turn islands off for the iteration (``StepSolver._solve``).
 """
 
 from __future__ import annotations
@@ -31,11 +31,6 @@ class BodyLabels:
     vertex_label: np.ndarray  # (n,) int64: the vertex's component; −1 for a vertex without a free DOF
     num_labels: int
     term_labels: list[np.ndarray]  # per term of ``system.terms``: the labels its stencils touch
-
-    def moving_labels(self, P: np.ndarray) -> np.ndarray:
-        """The labels of the vertices that ``P`` ((n, d)) moves."""
-        moving = np.any(P != 0.0, axis=1) & (self.vertex_label >= 0)
-        return np.unique(self.vertex_label[moving])
 
 
 def body_labels(system) -> BodyLabels:
