@@ -16,12 +16,11 @@ every body they touch through one unknown, turn islands off for the iteration (`
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+
+from idp.mesh.components import connected_components
 
 
 @dataclass
@@ -30,14 +29,15 @@ class BodyLabels:
 
     vertex_label: np.ndarray  # (n,) int64: the vertex's component; −1 for a vertex without a free DOF
     num_labels: int
-    term_labels: list[np.ndarray]  # per term of ``system.terms``: the labels its stencils touch
+    term_labels: list[np.ndarray]  # per term of ``system.terms``: the label of its stencils (none or one)
 
 
 def body_labels(system) -> BodyLabels:
     """Label the vertices of ``system`` by the component of the graph whose edges are its stencils (elements, shell
-    hinges, ...) and its pair terms' pairs. Vertices no free DOF moves get −1: they take no part in any move."""
+    hinges, ...), its pair terms' pairs, and each term's stencils among themselves (a term spanning several bodies
+    makes them one). Vertices no free DOF moves get −1: they take no part in any move."""
     n, d = system.x.shape
-    heads, tails = [np.arange(n, dtype=np.int64)], [np.arange(n, dtype=np.int64)]
+    heads, tails = [], []
     stencil_vertices = []
     for wt in system.terms:
         dofs = np.asarray(wt.term.element_dofs(), dtype=np.int64)
@@ -46,13 +46,14 @@ def body_labels(system) -> BodyLabels:
         for j in range(1, verts.shape[1]):
             heads.append(verts[:, 0])
             tails.append(verts[:, j])
+        if verts.shape[0] > 1:  # a term's value is one number: the bodies it spans move as one
+            heads.append(np.full(verts.shape[0] - 1, verts[0, 0]))
+            tails.append(verts[1:, 0])
     for t in system.pair_terms:
         pairs = np.asarray(t.pairs, dtype=np.int64).reshape(-1, 2)
         heads.append(pairs[:, 0])
         tails.append(pairs[:, 1])
-    rows, cols = np.concatenate(heads), np.concatenate(tails)
-    graph = sp.coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
-    _, comp = connected_components(graph, directed=False)
+    _, comp = connected_components(n, _joined(heads), _joined(tails))
     free = system.dof_map.free_mask.reshape(n, d).any(axis=1)
     comp = np.where(free, comp, -1).astype(np.int64)
     # renumber the used components 0..k−1
@@ -66,19 +67,13 @@ def body_labels(system) -> BodyLabels:
     return BodyLabels(vertex_label, int(used.size), term_labels)
 
 
-def merge_labels(num_labels: int, groups: np.ndarray, joined: Sequence[np.ndarray] = ()) -> tuple[int, np.ndarray]:
-    """Islands of labels joined by ``groups`` ((k, m) labels, −1 for none; every row's labels join one island)
-    and by each array of ``joined`` (a term's labels: its value is one number, so its bodies move as one island).
+def merge_labels(num_labels: int, groups: np.ndarray) -> tuple[int, np.ndarray]:
+    """Islands of labels joined by ``groups`` ((k, m) labels, −1 for none; every row's labels join one island).
     Returns (number of islands, island of each label)."""
     groups = np.asarray(groups, dtype=np.int64)
     if groups.ndim == 1:
         groups = groups[:, None]
-    heads, tails = [np.arange(num_labels, dtype=np.int64)], [np.arange(num_labels, dtype=np.int64)]
-    for lab in joined:
-        lab = np.asarray(lab, dtype=np.int64)
-        if lab.size > 1:
-            heads.append(np.full(lab.size - 1, lab[0]))
-            tails.append(lab[1:])
+    heads, tails = [], []
     if groups.size:
         # each row: join every valid label to the row's first valid one
         valid = groups >= 0
@@ -89,7 +84,9 @@ def merge_labels(num_labels: int, groups: np.ndarray, joined: Sequence[np.ndarra
             keep = any_valid & valid[:, j]
             heads.append(anchor[keep])
             tails.append(groups[keep, j])
-    rows, cols = np.concatenate(heads), np.concatenate(tails)
-    graph = sp.coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(num_labels, num_labels))
-    count, island = connected_components(graph, directed=False)
-    return int(count), island.astype(np.int64)
+    return connected_components(num_labels, _joined(heads), _joined(tails))
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """The edge ends of ``parts`` in one int64 array (empty when there are none)."""
+    return np.concatenate(parts).astype(np.int64, copy=False) if parts else np.zeros(0, dtype=np.int64)

@@ -135,7 +135,7 @@ class NewtonResult:
     exact_refactorizations: int = 0  # ... and factorisations where CG did not converge
     lookahead_iterations: int = 0  # iterations whose search matrix saw pairs beyond d̂ (contact_lookahead)
     island_iterations: int = 0  # iterations whose islands took step lengths of their own (idp.solver.islands)
-    max_islands: int = 0  # the most islands with a move of their own in one iteration
+    max_islands: int = 0  # the most islands a move was split into in one iteration
     # why the last iteration's decrement, though within tol, did not end the solve ("" when it was above tol or
     # the solve converged): its direction came from a look-ahead majorant, or the step constraint changed or had
     # not settled (handles / targets still being pulled, κ_B doubled, a snap)
@@ -395,7 +395,7 @@ class StepSolver:
         quads, _ = candidate_pairs(contact._edges, contact._faces, fv, ee, np.arange(nf + ee.shape[0]))
         verts = contact.to_full[quads]
         pair_labels = np.where(moving[verts], vlab[verts], -1)
-        num_islands, island_of_label = merge_labels(labels.num_labels, pair_labels, labels.term_labels)
+        num_islands, island_of_label = merge_labels(labels.num_labels, pair_labels)
         v_island = np.where(vlab >= 0, island_of_label[np.maximum(vlab, 0)], -1)
         v_island[~moving] = -1  # vertices the move leaves where they are belong to no island's move
         islands = np.unique(v_island[v_island >= 0])
@@ -421,7 +421,6 @@ class StepSolver:
             alpha_ccd = min(alpha_ccd, ac)
         if alpha_ccd < LOOKAHEAD_TRIGGER and self.settings.contact_lookahead > 1.0:
             self._cut_sweep = cand
-        res.island_iterations += 1
         res.max_islands = max(res.max_islands, int(islands.size))
         scale = np.where(v_island >= 0, island_alpha[np.maximum(v_island, 0)], 0.0)
         line_cand = (np.concatenate(keep_fv), np.concatenate(keep_ee))
@@ -465,10 +464,11 @@ class StepSolver:
                 if alpha == 1.0 and move is P and self._may_extend and not any(a < 1.0 for a in res.ccd_alphas):
                     alpha, trial = self._extrapolate(x, P, x_prev, ev, (xt, evt, et, elt, bt), res)
                     return True, alpha, alpha_inv, alpha_ccd, trial
+                if move is not P:
+                    res.island_iterations += 1
                 return True, alpha * share, alpha_inv, alpha_ccd, (xt, evt, et, elt, bt)
             alpha *= 0.5
         if move is not P:  # no decrease along the islands' move: the uniform move, as without islands
-            res.island_iterations -= 1
             self._islands_now = False
             try:
                 return self._filtered_step(x, P, x_prev, energy, ev, res)
