@@ -57,6 +57,7 @@ known beforehand and the memory guard skips the check.
 from __future__ import annotations
 
 import time
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -133,6 +134,24 @@ def _options(**values: object) -> Iterator[None]:
 THREADED_MIN_DOFS = 40_000
 
 
+def _pattern_fingerprint(aptr: np.ndarray, arow: np.ndarray, n: int) -> np.ndarray:
+    """(n, stored entries, CRC-32 of the column pointers, CRC-32 of the rows) of an upper-triangle pattern."""
+    ptr = np.ascontiguousarray(aptr, dtype=np.int64)
+    row = np.ascontiguousarray(arow, dtype=np.int32)
+    return np.array([n, row.size, zlib.crc32(ptr.tobytes()), zlib.crc32(row.tobytes())], dtype=np.int64)
+
+
+def _restorable(restore: tuple[np.ndarray, np.ndarray], aptr: np.ndarray, arow: np.ndarray, n: int, ordered: bool):
+    """Whether a checkpoint's (fingerprint, ordering) is that of this pattern, the ordering a permutation of its
+    n DOFs (empty: CHOLMOD's own, when idp does not order)."""
+    fingerprint, perm = restore
+    if not np.array_equal(fingerprint, _pattern_fingerprint(aptr, arow, n)):
+        return False
+    if not ordered:
+        return perm.size == 0
+    return perm.size == n and np.array_equal(np.sort(perm), np.arange(n))
+
+
 class CholmodSolver(LinearSolver):
     """Supernodal CHOLMOD Cholesky (cvxopt) with METIS vertex-graph ordering and symbolic reuse."""
 
@@ -163,6 +182,7 @@ class CholmodSolver(LinearSolver):
         self._ordering_kind: str | None = None  # "metis" or "amd": the last comparison's choice
         self._since_ordering_check = 0  # analyses since that comparison
         self._ordering_interval = ORDERING_RECHECK  # analyses until the next one
+        self._restore: tuple[np.ndarray, np.ndarray] | None = None  # a checkpoint's analysis (load_state)
 
     def _fresh(self) -> CholmodSolver:
         other = CholmodSolver(self.dofs_per_node, use_metis=self.use_metis, reuse_ordering=self.reuse_ordering)
@@ -178,7 +198,10 @@ class CholmodSolver(LinearSolver):
         self._F, self._S = None, None  # the last pattern's factor and matrix: freed before this one's are built
         self._pattern.clear()
         t0 = time.perf_counter()
-        if self.reuse_ordering and self._perm is not None and self._perm.shape[0] == n:
+        restore, self._restore = self._restore, None
+        if restore is not None and _restorable(restore, aptr, arow, n, self.use_metis):
+            perm = restore[1] if restore[1].size else None  # the pattern the run had analysed: its ordering
+        elif self.reuse_ordering and self._perm is not None and self._perm.shape[0] == n:
             perm = self._perm
         elif self.use_metis:
             perm = self._ordering(aptr, arow, n)
@@ -207,6 +230,38 @@ class CholmodSolver(LinearSolver):
         self.stats["ordering"] += t1 - t0
         self.stats["symbolic"] += t2 - t1
         self.stats["symbolic_analyses"] += 1
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The ordering schedule (the last comparison's choice, analyses since it, the interval to the next) and
+        the analysed pattern's fingerprint and ordering: a resumed run that first meets that same pattern takes
+        that ordering without counting an analysis, as the uninterrupted run, which had it analysed, factorises
+        on it without one; so both then make the same choices, and the same factors."""
+        kind = {None: -1, "metis": 0, "amd": 1}[self._ordering_kind]
+        st = {"schedule": np.array([kind, self._since_ordering_check, self._ordering_interval], dtype=np.int64)}
+        if self._aptr is not None and self._arow is not None:
+            st["fingerprint"] = _pattern_fingerprint(self._aptr, self._arow, self._aptr.size - 1)
+            st["perm"] = np.zeros(0, np.int64) if self._perm is None else np.asarray(self._perm, dtype=np.int64)
+        return st
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`state`. Only an optimisation for identical resumed runs: values that are missing (a
+        checkpoint written before they were kept) or not as :meth:`state` writes them are ignored, and the solver
+        then chooses afresh."""
+
+        def integers(key: str, shape: tuple[int, ...] | None) -> np.ndarray | None:
+            a = np.asarray(state.get(key, np.zeros(0, np.int64)))
+            ok = a.dtype.kind in "iu" and a.ndim == 1 and (shape is None or a.shape == shape)
+            return a.astype(np.int64) if ok else None
+
+        schedule = integers("schedule", (3,))
+        if schedule is None:
+            return
+        kind, since, interval = (int(v) for v in schedule)
+        self._ordering_kind = {0: "metis", 1: "amd"}.get(kind)
+        self._since_ordering_check, self._ordering_interval = max(0, since), max(1, interval)
+        fingerprint, perm = integers("fingerprint", (4,)), integers("perm", None)
+        if fingerprint is not None and perm is not None:
+            self._restore = (fingerprint, perm)
 
     def _ordering(self, aptr: np.ndarray, arow: np.ndarray, n: int) -> np.ndarray:
         """Fill-reducing DOF ordering of the symmetric pattern with upper-triangle columns (aptr, arow): METIS or

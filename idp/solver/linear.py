@@ -291,6 +291,16 @@ class LinearSolver(ABC):
         """Zero the timing and count statistics."""
         self.stats = _new_stats()
 
+    def state(self) -> dict[str, np.ndarray]:
+        """What a run's checkpoint keeps of this solver so that a resumed run factorises as the uninterrupted one
+        would (backends whose choices depend on their history: :class:`~idp.solver.cholmod_cvxopt.CholmodSolver`).
+        None here."""
+        return {}
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`state` (nothing here)."""
+        return None
+
     def sibling(self) -> LinearSolver:
         """A solver of the same kind and settings with its own pattern work (a second system solved beside this
         one, e.g. :class:`idp.solver.held_reduction.HeldReduction`'s), counting into the same ``stats`` and

@@ -55,11 +55,12 @@ class RunResult:
     parts: list = field(default_factory=list)
 
 
-def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
+def _save_checkpoint(path: Path, x: np.ndarray, step: int, system, linear: LinearSolver | None = None) -> None:
     """Write the finished state atomically (temp file + rename): an interruption never leaves a torn file.
 
-    Holds the positions, the step, the barrier stiffness and every per-step condition's own state (handle
-    selections made during the run, rest frames changed by plasticity, ...)."""
+    Holds the positions, the step, the barrier stiffness, every per-step condition's own state (handle
+    selections made during the run, rest frames changed by plasticity, ...), the Newton matrix's contact pattern
+    and the linear solver's ordering state."""
     tmp = path.with_name(path.name + ".tmp.npz")
     extra = {}
     for i, cond in enumerate(system.conditions):
@@ -69,6 +70,8 @@ def _save_checkpoint(path: Path, x: np.ndarray, step: int, system) -> None:
     if getattr(system, "contact_pattern", None) is not None:
         for k, v in system.contact_pattern.state().items():
             extra[f"pattern__{k}"] = v
+    for k, v in (linear.state() if linear is not None else {}).items():
+        extra[f"linear__{k}"] = v
     np.savez(
         tmp,
         x=x,
@@ -239,6 +242,7 @@ def run_simulation(
             done = ck.get("kappa_initialized")  # absent in checkpoints written before it was kept
             system.contact.kappa_initialized = bool(done) if done is not None else system.contact.kappa > 0.0
         _load_condition_states(ck, system, checkpoint)
+        linear.load_state({k.removeprefix("linear__"): v for k, v in ck.items() if k.startswith("linear__")})
         previous, resumes = _previous_stats(stats_path, start_step)
         log.info("resuming %s after step %d", out, start_step)
     if hasattr(writer, "resume") and start_step > 0:  # adopt the finished frames, drop any later or torn ones
@@ -356,7 +360,7 @@ def run_simulation(
                     msg = nonconvergence_message(step, res, newton)
                     if settings.on_nonconvergence == "error":  # the certified state is kept, as for unmet targets
                         writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                        _save_checkpoint(checkpoint, x, step, system)
+                        _save_checkpoint(checkpoint, x, step, system, linear)
                         raise SolverError(msg)
                     log.warning(msg)
                 if bc_report is not None and not bc_report["met"]:
@@ -366,7 +370,7 @@ def run_simulation(
                     )
                     if settings.on_unmet_targets == "error":
                         writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                        _save_checkpoint(checkpoint, x, step, system)
+                        _save_checkpoint(checkpoint, x, step, system, linear)
                         raise SolverError(msg)
                     log.warning(msg)
                 last = step == settings.steps
@@ -374,7 +378,7 @@ def run_simulation(
                 single = settings.stop_after_single_iteration and res.converged and res.iterations <= 1
                 if last or stationary or single or step % settings.write_every == 0:
                     writer.write(step, x, time=step * math.sqrt(system.h), cell_data=_cell_data(system))
-                _save_checkpoint(checkpoint, x, step, system)
+                _save_checkpoint(checkpoint, x, step, system, linear)
                 if progress is not None:
                     post: dict[str, Any] = {"its": res.iterations, "contacts": res.num_contacts}
                     if bc_report is not None:

@@ -468,3 +468,62 @@ def test_ordering_comparisons_thin_out_while_the_choice_holds() -> None:
     assert s.stats["symbolic_analyses"] == analyses
     assert s.stats["ordering_checks"] == 3  # analyses 1, 1 + 4 and 1 + 4 + 8
     assert s.stats["amd_orderings"] + s.stats.get("metis_orderings", 0) == analyses
+
+
+@pytest.mark.parametrize("resume_at", [1, 3, 5])
+def test_cholmod_state_lets_a_resumed_solver_make_the_same_choices(resume_at: int) -> None:
+    """A run's checkpoint keeps the solver's ordering schedule and analysed pattern (CholmodSolver.state): a fresh
+    solver that loads it and meets that pattern again takes the same ordering without counting an analysis, and
+    from then on chooses its orderings (METIS or AMD, and when to compare them) as the uninterrupted solver does."""
+    patterns = [make_matrix(nx=6, seed=0, contacts=c) for c in (0, 4, 8, 12, 16, 20, 24, 28)]  # growing
+    whole = _cholmod_solver(3)
+    resumed = None
+    b = np.random.default_rng(5).standard_normal(patterns[0].shape[0])
+    for k, A in enumerate(patterns):
+        whole.factorize(A)
+        if k == resume_at:  # the checkpoint, then a new process that resumes with the pattern it had reached
+            resumed = _cholmod_solver(3)
+            resumed.load_state(whole.state())
+        if resumed is not None:
+            resumed.factorize(A)
+            assert np.array_equal(resumed._perm, whole._perm), k
+            assert resumed.state()["schedule"].tolist() == whole.state()["schedule"].tolist(), k
+            assert np.allclose(resumed.solve(b), whole.solve(b), rtol=1e-10, atol=1e-12)
+    assert resumed is not None and whole.stats.get("ordering_checks", 0) >= 2  # the schedule compared again
+
+
+def test_cholmod_state_of_another_pattern_is_not_taken() -> None:
+    solver = _cholmod_solver(3)
+    solver.factorize(make_matrix(nx=6, seed=0, contacts=8))
+    other = _cholmod_solver(3)
+    other.load_state(solver.state())
+    A = make_matrix(nx=6, seed=0, contacts=20)  # not the pattern the state was analysed on: ordered afresh
+    other.factorize(A)
+    fresh = _cholmod_solver(3)
+    fresh.load_state({"schedule": solver.state()["schedule"]})
+    fresh.factorize(A)
+    assert np.array_equal(other._perm, fresh._perm)
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        {"schedule": np.array(["a", "b", "c"])},
+        {"schedule": np.full(3, np.nan)},
+        {"schedule": np.zeros((2, 2), np.int64)},
+        {"perm": np.full(3, 2**62, dtype=np.int64)},
+        {"perm": np.zeros(0, np.int64)},
+        {"fingerprint": np.zeros(4, np.complex128)},
+    ],
+)
+def test_cholmod_state_damaged_in_a_checkpoint_is_ignored(damage: dict) -> None:
+    A = make_matrix(nx=6, seed=0, contacts=8)
+    solver = _cholmod_solver(3)
+    solver.factorize(A)
+    state = {**solver.state(), **damage}
+    resumed = _cholmod_solver(3)
+    resumed.load_state(state)  # no exception: the solver chooses afresh where the state is not usable
+    resumed.factorize(A)
+    b = np.ones(A.shape[0])
+    assert rel_residual(A, resumed.solve(b), b) < 1e-10
+    assert np.array_equal(np.sort(resumed._perm), np.arange(A.shape[0]))
