@@ -130,6 +130,11 @@ class HessianBlockStream:
         """Blocks after the first set's (the look-ahead set's)."""
         return len(self) - int(self._offsets[1])
 
+    def ahead_vertices(self) -> np.ndarray:
+        """(k, 4) collision-mesh vertex ids (−1 padded) of the look-ahead sets' pairs (those after the first set)."""
+        parts = [cs.verts for cs, _, _ in self._sets[1:]]
+        return np.concatenate(parts) if parts else np.zeros((0, 4), dtype=np.int32)
+
     def blocks(self, c0: int, c1: int, buffer: np.ndarray) -> np.ndarray:
         """The blocks of collisions c0 … c1 − 1, written into ``buffer[: c1 − c0]`` ((≥ c1 − c0, 12, 12),
         C-contiguous), which is returned; fills ``block_verts[c0:c1]``."""

@@ -11,7 +11,10 @@ live ones (their entries are explicit zeros meanwhile, which only cost fill), an
 missing couplings into the diagonal instead of growing (see :meth:`GrowingBlockPattern._fold`): the
 matrix is then a positive-definite majorant of the Hessian, which keeps the Newton direction a descent
 direction. bunny_1922: 250 → 18 analyses, same Newton iteration count, 31.5 s → 22.6 s; bunny_3376
-(with the size-scaled fold limit): 78 s → 45 s.
+(with the size-scaled fold limit): 78 s → 45 s. A fold stiffens the pair's common motion (both sides moving
+together costs what their closing costs), so where that motion matters (light petals sagging onto each other) the
+folded direction can be far from Newton's: the Newton loop then grows the pattern at once
+(``StepSolver._undistorted``, ``NewtonSettings.fold_distortion``).
 
 Only for systems whose vertices are wholly free or wholly pinned (the block layout of
 :class:`~idp.solver.assembly.FixedPatternAssembler`); values are exact, only the pattern is padded.

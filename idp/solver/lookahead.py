@@ -11,7 +11,7 @@ After ``max_futile`` such rounds the look-ahead stays off for the rest of the st
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import numpy as np
 
 #: On for the next iteration after an accepted step that CCD cut below this fraction of the Newton step (and so on
 #: while the cuts go on), with a barrier stiffness of this share of κ (bunny_700: shares 1, 0.1, 0.01, 0.001 gave
@@ -27,30 +27,42 @@ LOOKAHEAD_STIFFNESS = 0.01
 LOOKAHEAD_MAX_FUTILE = 2
 
 
-@dataclass
 class LookaheadSwitch:
-    """The look-ahead's state during one step's Newton solve. ``enabled``: the scene's reach is above 1."""
+    """The look-ahead's state during one step's Newton solve, one switch per body (``bodies``; 1: the whole system).
 
-    enabled: bool
-    max_futile: int = LOOKAHEAD_MAX_FUTILE
-    on: bool = False  # whether the next search matrix gets the look-ahead
-    futile: int = 0  # exact directions cut short right after a majorant's within tol
-    _settled_majorant: bool = False  # the last iteration's direction was a majorant's, within tol
-    _after_settled: bool = False  # this iteration follows such a one
+    Bodies that cannot meet (islands, :mod:`idp.solver.islands`) have separate switches, as they would alone: one
+    flower whose move CCD cuts short turns the look-ahead on for its own pairs only, and one flower's futile rounds
+    turn it off for that flower only. ``enabled``: the scene's reach is above 1."""
 
-    def may_end_solve(self, within_tol: bool, used: bool) -> bool:
+    def __init__(self, enabled: bool, bodies: int = 1, max_futile: int = LOOKAHEAD_MAX_FUTILE):
+        self.enabled = enabled
+        self.max_futile = max_futile
+        self.on = np.zeros(bodies, dtype=bool)  # whether the next search matrix gets the look-ahead, per body
+        self.futile = np.zeros(bodies, dtype=np.int64)  # exact directions cut short right after a majorant's within tol
+        self._settled_majorant = np.zeros(bodies, dtype=bool)  # the last direction was a majorant's, within tol
+        self._after_settled = np.zeros(bodies, dtype=bool)  # this iteration follows such a one
+
+    @property
+    def any_on(self) -> bool:
+        return bool(self.on.any())
+
+    def may_end_solve(self, within_tol: bool, used, body_within=None) -> bool:
         """Whether this iteration's direction, with its decrement within tol or not, may end the solve; ``used``:
-        its matrix held look-ahead blocks (a majorant's direction: the next, exact, iteration judges)."""
-        self._after_settled, self._settled_majorant = self._settled_majorant, False
-        if within_tol and used:
-            self.on, self._settled_majorant = False, True
-            return False
-        return within_tol
+        its matrix held look-ahead blocks (per body, or one value for all: a majorant's direction, the next,
+        exact, iteration judges). ``body_within``: per body, whether its own part of the direction is within tol
+        (default: ``within_tol`` for every body); the solve's end is judged on the whole direction."""
+        used = np.broadcast_to(np.asarray(used, dtype=bool), self.on.shape)
+        within = np.broadcast_to(np.asarray(within_tol if body_within is None else body_within, dtype=bool), used.shape)
+        self._after_settled = self._settled_majorant
+        self._settled_majorant = within & used
+        self.on = self.on & ~self._settled_majorant
+        return bool(within_tol) and not bool(used.any())
 
-    def after_step(self, ccd_fraction: float, used: bool, allowed: bool) -> None:
-        """Decide the next iteration's matrix from the accepted step: on after a step CCD cut below
-        LOOKAHEAD_TRIGGER while ``allowed`` (a collision set, no kinematic tool moving) and not yet futile."""
-        cut = ccd_fraction < LOOKAHEAD_TRIGGER
-        if cut and self._after_settled and not used:
-            self.futile += 1  # the majorant said "here", the exact direction went on and was cut short
-        self.on = self.enabled and cut and allowed and self.futile < self.max_futile
+    def after_step(self, ccd_fraction, used, allowed: bool) -> None:
+        """Decide the next iteration's matrix from the accepted step (``ccd_fraction`` and ``used`` per body or one
+        value for all): on after a step CCD cut below LOOKAHEAD_TRIGGER while ``allowed`` (a collision set, no
+        kinematic tool moving) and not yet futile."""
+        cut = np.broadcast_to(np.asarray(ccd_fraction) < LOOKAHEAD_TRIGGER, self.on.shape)
+        used = np.broadcast_to(np.asarray(used, dtype=bool), self.on.shape)
+        self.futile += cut & self._after_settled & ~used  # the majorant said "here", the exact direction went on
+        self.on = cut & (self.futile < self.max_futile) & bool(self.enabled and allowed)

@@ -327,6 +327,7 @@ def run_simulation(
                     "gradient_descent_fallbacks": res.gradient_descent_fallbacks,
                     "pcg_iterations": res.pcg_iterations,
                     "exact_refactorizations": res.exact_refactorizations,
+                    "distorted_folds": res.distorted_folds,
                     "lookahead_iterations": res.lookahead_iterations,
                     "island_iterations": res.island_iterations,
                     "max_islands": res.max_islands,

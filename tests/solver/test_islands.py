@@ -111,6 +111,8 @@ def test_a_body_is_not_held_back_by_another_landing_elsewhere(tmp_path):
     # both land in the first step: CCD cuts their moves, and without islands each ball's cuts stop the other too
     assert min(whole[0]["ccd_alphas"]) < 0.5
     assert split[0]["island_iterations"] > 0 and split[0]["max_islands"] == 2
+    # each ball's contact look-ahead switched on by its own cut moves (one switch per body)
+    assert split[0]["lookahead_iterations"] > 0
     assert all(r["island_iterations"] == 0 for r in whole)
     assert sum(r["newton_iterations"] for r in split) < sum(r["newton_iterations"] for r in whole)
     # the same minimiser, up to the stopping rule (max |p| / √h ≤ 1e-2: moves left of ~1e-3 at h = 1e-2)

@@ -58,3 +58,26 @@ def test_disabled_or_not_allowed_never_turns_on():
     tools = LookaheadSwitch(True)  # a kinematic tool moving (or no collision set)
     tools.after_step(CUT, used=False, allowed=False)
     assert not tools.on
+
+
+def test_bodies_have_their_own_switches():
+    """Islands (idp.solver.islands): one body's cut move turns the look-ahead on for that body alone, and its
+    futile rounds turn it off for that body alone, as if each were alone."""
+    sw = LookaheadSwitch(True, bodies=2)
+    sw.may_end_solve(False, used=False)
+    sw.after_step([CUT, FREE], used=False, allowed=True)
+    assert sw.on.tolist() == [True, False]
+    for round_ in range(1, LOOKAHEAD_MAX_FUTILE + 1):  # body 0 alternates futilely; body 1 is cut every time
+        assert not sw.may_end_solve(False, used=[True, False], body_within=[True, False])
+        sw.after_step([FREE, CUT], used=[True, False], allowed=True)
+        assert not sw.may_end_solve(False, used=[False, True], body_within=[False, False])
+        sw.after_step([CUT, CUT], used=[False, True], allowed=True)
+        assert sw.futile.tolist() == [round_, 0]
+    assert sw.on.tolist() == [False, True]
+
+
+def test_a_majorant_in_any_body_defers_the_end_of_the_solve():
+    sw = LookaheadSwitch(True, bodies=3)
+    assert not sw.may_end_solve(True, used=[False, True, False], body_within=[True, True, True])
+    assert sw.may_end_solve(True, used=[False, False, False], body_within=[True, True, True])
+    assert not sw.may_end_solve(False, used=False, body_within=[True, True, True])  # the whole direction decides

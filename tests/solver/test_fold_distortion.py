@@ -1,0 +1,92 @@
+"""A folded matrix's direction is kept only while the fold barely changes it (StepSolver._undistorted).
+
+Folding a missing coupling B onto the diagonal makes a majorant that is stiffer than the Hessian wherever the two
+coupled vertices must move together; where that stiffening is large along the direction, the direction is not
+Newton's (petals sagging onto petals stalled for tens of iterations), and the exact matrix is factorised instead."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from solver.test_contact_pattern import DIM, _chain_problem, _pair_hessian, _reference
+
+from idp.solver.contact_pattern import GrowingBlockPattern
+from idp.solver.linear import make_linear_solver
+from idp.solver.newton import NewtonResult, NewtonSettings, StepSolver
+
+
+class _PatternOnly:
+    """The one part of a system that StepSolver._undistorted reads."""
+
+    def __init__(self, pattern):
+        self.contact_pattern = pattern
+        self.terms: list = []
+
+
+def _solver(pattern) -> StepSolver:
+    return StepSolver(_PatternOnly(pattern), NewtonSettings(), make_linear_solver("scipy", DIM))
+
+
+def _point_pair_hessian(v0: int, v1: int, normal: np.ndarray, nv: int, scale: float) -> sp.csc_matrix:
+    """A point-point barrier's Hessian along ``normal``: stiff against the two points closing, free for them moving
+    together (CSC on all vertices' DOFs)."""
+    nn = scale * np.outer(normal, normal)
+    local = np.block([[nn, -nn], [-nn, nn]])
+    idx = (np.array([v0, v1])[:, None] * DIM + np.arange(DIM)).ravel()
+    r, c = np.meshgrid(idx, idx, indexing="ij")
+    return sp.csc_matrix((local.ravel(), (r.ravel(), c.ravel())), shape=(nv * DIM, nv * DIM))
+
+
+def _folded(scale: float):
+    """A soft chain, two of whose far-apart vertices (2 and 15) touch: their barrier coupling is folded, and the
+    gradient pulls both along the contact normal (gravity on two sagging petals). Returns (pattern, folded
+    matrix, exact matrix, gradient)."""
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    soft = 1e-2
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=64)
+    data = asm.assemble_data([soft * blocks], [1.0], soft * diag)
+    normal = np.array([0.0, 1.0, 0.0])
+    C = _point_pair_hessian(2, 15, normal, 24, scale)
+    M = pattern.assemble(data, C, dmap.global_to_free)
+    assert pattern.last_folded
+    exact = _reference(asm, soft * blocks, soft * diag, C, dmap)
+    g = 1e-3 * rng.standard_normal(dmap.num_free)
+    for v in (2, 15):
+        g[dmap.global_to_free[v * DIM : v * DIM + DIM]] += normal
+    return pattern, M, exact, g
+
+
+def test_a_fold_that_barely_changes_the_direction_is_kept():
+    pattern, M, _, g = _folded(scale=1e-6)
+    solver = _solver(pattern)
+    p = -solver._factorize(M)(g)
+    res = NewtonResult()
+    assert solver._undistorted(p, g, res) is p
+    assert res.distorted_folds == 0 and pattern.growths == 0 and pattern.last_folded
+
+
+@pytest.mark.parametrize("scale", [1e2, 1e4])
+def test_a_stiffening_fold_is_replaced_by_the_exact_direction(scale):
+    pattern, M, exact, g = _folded(scale=scale)
+    solver = _solver(pattern)
+    p = -solver._factorize(M)(g)
+    res = NewtonResult()
+    q = solver._undistorted(p, g, res)
+    newton = -np.linalg.solve(exact, g)
+    assert np.linalg.norm(p - newton) > 0.1 * np.linalg.norm(newton)  # the folded direction is far from Newton's
+    assert np.allclose(q, newton, rtol=1e-8, atol=1e-10 * np.abs(newton).max())
+    assert res.distorted_folds == 1 and pattern.growths == 1 and not pattern.last_folded
+
+
+def test_no_fold_no_check():
+    rng, dmap, asm, blocks, diag = _chain_problem()
+    pattern = GrowingBlockPattern(asm.layout, fold_limit=0)  # never folds: grows
+    data = asm.assemble_data([blocks], [1.0], diag)
+    M = pattern.assemble(data, _pair_hessian(rng, [2, 15, 16, 17], 24, scale=1e4), dmap.global_to_free)
+    assert not pattern.last_folded
+    g = rng.standard_normal(dmap.num_free)
+    solver = _solver(pattern)
+    p = -solver._factorize(M)(g)
+    res = NewtonResult()
+    assert solver._undistorted(p, g, res) is p and res.distorted_folds == 0
