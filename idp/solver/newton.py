@@ -661,6 +661,12 @@ class StepSolver:
         try:
             solve = self._factorize(H)
             p0 = -solve(g)
+            if self._fold_distorts(p0, g):  # the body's direction as without tools (_undistorted)
+                before = res.timings["assembly"]
+                H = self._unfolded_matrix(res)
+                t += res.timings["assembly"] - before  # counted as assembly, not as the solve
+                solve = self._factorize(H)
+                p0 = -solve(g)
             Y = np.column_stack([solve(Ct[:, k]) for k in range(m)]) if np.any(Ct) else np.zeros_like(Ct)
             schur = D - Ct.T @ Y
             q = np.linalg.solve(schur, -g_s - Ct.T @ p0)
@@ -676,29 +682,36 @@ class StepSolver:
         res.timings["linear_solve"] += time.perf_counter() - t
         return p_free, q
 
-    def _undistorted(self, p_free: np.ndarray, g: np.ndarray, res: NewtonResult) -> np.ndarray:
-        """``p_free``, the direction of the matrix just factorised, unless that matrix was folded and the fold
-        distorts the direction (its Newton residual ‖K·p‖ or the fold's stiffening along it, see
-        ``NewtonSettings.fold_distortion``): then the direction of the exact matrix, on the pattern grown to hold
-        the folded couplings. (With kinematic tools the bordered solve keeps the folded factor.)"""
-        s = self.system
-        pattern = s.contact_pattern
+    def _fold_distorts(self, p_free: np.ndarray, g: np.ndarray) -> bool:
+        """Whether the matrix just factorised was folded and the fold distorts its direction ``p_free`` = −M⁻¹g:
+        its Newton residual ‖K·p‖ or the fold's stiffening along it beyond ``NewtonSettings.fold_distortion`` /
+        ``fold_stiffening`` (K = exact − M)."""
+        pattern = self.system.contact_pattern
         if pattern is None or not pattern.last_folded:
-            return p_free
+            return False
         K = pattern.fold_correction
         keep = None if self._held is None else ~self._held
         residual = K @ p_free if keep is None else keep * (K @ (keep * p_free))
         curvature = -float(g @ p_free)  # pᵀMp, M·p being −g
-        if (
+        return not (
             np.linalg.norm(residual) <= self.settings.fold_distortion * np.linalg.norm(g)
             and abs(float(p_free @ residual)) <= self.settings.fold_stiffening * curvature
-        ):
-            return p_free
+        )
+
+    def _unfolded_matrix(self, res: NewtonResult) -> sp.csr_matrix:
+        """The last folded matrix without folding, on the pattern grown by its folded couplings (held DOFs held)."""
         res.distorted_folds += 1
         t = time.perf_counter()
-        H = self._hold(pattern.exact_matrix())
+        H = self._hold(self.system.contact_pattern.exact_matrix())
         res.timings["assembly"] += time.perf_counter() - t
-        return self._direction(H, g, res)
+        return H
+
+    def _undistorted(self, p_free: np.ndarray, g: np.ndarray, res: NewtonResult) -> np.ndarray:
+        """``p_free``, the direction of the matrix just factorised, unless that matrix was folded and the fold
+        distorts the direction (:meth:`_fold_distorts`): then the direction of the exact matrix."""
+        if not self._fold_distorts(p_free, g):
+            return p_free
+        return self._direction(self._unfolded_matrix(res), g, res)
 
     def _exact_direction(self, M, g: np.ndarray, p_folded: np.ndarray, res: NewtonResult) -> np.ndarray:
         """Exact Newton direction −H⁻¹g when ``M`` (just factorised) is a folded majorant of H.
