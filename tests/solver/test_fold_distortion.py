@@ -90,3 +90,31 @@ def test_no_fold_no_check():
     p = -solver._factorize(M)(g)
     res = NewtonResult()
     assert solver._undistorted(p, g, res) is p and res.distorted_folds == 0
+
+
+class _UnitPenalty:
+    """A step constraint whose penalty gives each tool a unit stiffness (the bordered system's D block)."""
+
+    def __init__(self, size: int):
+        self.size = size
+
+    def penalty_hessian_diagonal(self) -> np.ndarray:
+        return np.ones(self.size)
+
+
+def test_the_fold_check_applies_while_kinematic_tools_move():
+    """The bordered solve of a kinematic tool (StepSolver._direction_with_tools) takes the body's direction from the
+    exact matrix too when the fold distorts it."""
+    pattern, M, exact, g = _folded(scale=1e4)
+    system = _PatternOnly(pattern)
+    system.dim = DIM
+    solver = StepSolver(system, NewtonSettings(), make_linear_solver("scipy", DIM))
+    nd = 24 * DIM
+    solver._constraint = _UnitPenalty(nd)
+    tool = (np.array([0]), np.array([[0.0, 1.0, 0.0]]))  # vertex 0 is pinned: a tool's vertex, no free DOF
+    res = NewtonResult()
+    p, q = solver._direction_with_tools(M, g, np.zeros(nd), None, [tool], res)
+    newton = -np.linalg.solve(exact, g)
+    assert res.distorted_folds == 1 and pattern.growths == 1
+    assert np.allclose(p, newton, rtol=1e-8, atol=1e-10 * np.abs(newton).max())
+    assert q.shape == (1,)
