@@ -44,9 +44,10 @@ class LookaheadSwitch:
 
     @property
     def any_on(self) -> bool:
+        """Whether the next search matrix gets look-ahead blocks for any body."""
         return bool(self.on.any())
 
-    def may_end_solve(self, within_tol: bool, used, body_within=None) -> bool:
+    def may_end_solve(self, within_tol: bool, used: np.ndarray | bool, body_within: np.ndarray | None = None) -> bool:
         """Whether this iteration's direction, with its decrement within tol or not, may end the solve; ``used``:
         its matrix held look-ahead blocks (per body, or one value for all: a majorant's direction, the next,
         exact, iteration judges). ``body_within``: per body, whether its own part of the direction is within tol
@@ -58,7 +59,7 @@ class LookaheadSwitch:
         self.on = self.on & ~self._settled_majorant
         return bool(within_tol) and not bool(used.any())
 
-    def after_step(self, ccd_fraction, used, allowed: bool) -> None:
+    def after_step(self, ccd_fraction: np.ndarray | float, used: np.ndarray | bool, allowed: bool) -> None:
         """Decide the next iteration's matrix from the accepted step (``ccd_fraction`` and ``used`` per body or one
         value for all): on after a step CCD cut below LOOKAHEAD_TRIGGER while ``allowed`` (a collision set, no
         kinematic tool moving) and not yet futile."""
