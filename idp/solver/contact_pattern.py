@@ -204,6 +204,9 @@ class GrowingBlockPattern:
         self.stale_factor = float(stale_factor)
         self.fold_limit = max(64, base.nfv // 16) if fold_limit is None else int(fold_limit)
         self.folds = 0
+        # False: missing couplings always grow the pattern (the Newton loop turns folding off for the rest of a step
+        # once a fold has distorted a direction there: StepSolver._unfolded_matrix)
+        self.folding = True
         self._correction: tuple | None = None  # exact − folded matrix after a fold, as (values, rows, cols, n) ...
         self._correction_matrix: sp.csr_matrix | None = None  # ... and as a matrix once asked for
         self._folded: tuple | None = None  # (folded values, folded vertex-pair keys) for exact_matrix()
@@ -297,6 +300,8 @@ class GrowingBlockPattern:
         cautious one); it avoids a new ordering and symbolic analysis for a handful of new couplings. The
         correction it leaves (exact − folded) has the rank of B per pair, where ‖B‖·I on both diagonal blocks left
         up to 2d − 1: fewer conjugate-gradient iterations for the exact direction (``idp.solver.pcg``)."""
+        if not self.folding:
+            return False
         d = self.base.d
         keys, inv = np.unique(self._vertex_keys(rows, cols), return_inverse=True)
         if keys.size > self.fold_limit:

@@ -117,6 +117,10 @@ class NewtonSettings:
     # and their solves took 22 and 35 Newton iterations, 9 and 16 with these checks, 9 and 7 never folding.
     fold_distortion: float = 0.5
     fold_stiffening: float = 0.02
+    # once a fold has distorted a direction in a step, the rest of that step grows the pattern instead of folding
+    # (False), skipping the folded factorisation that would mostly be thrown away: the stored dumplings of Fig. 21
+    # landing on the pile distorted 12 folds in 12 iterations, each costing a wasted 7-s factorisation
+    refold_after_distortion: bool = False
     max_seconds: float | None = None  # wall-clock limit of one step (checked after each accepted iterate)
     max_memory: int | None = None  # bytes a step may use (on top of the memory available; None: that alone)
     memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
@@ -701,8 +705,10 @@ class StepSolver:
     def _unfolded_matrix(self, res: NewtonResult) -> sp.csr_matrix:
         """The last folded matrix without folding, on the pattern grown by its folded couplings (held DOFs held)."""
         res.distorted_folds += 1
+        pattern = self.system.contact_pattern
+        pattern.folding = self.settings.refold_after_distortion
         t = time.perf_counter()
-        H = self._hold(self.system.contact_pattern.exact_matrix())
+        H = self._hold(pattern.exact_matrix())
         res.timings["assembly"] += time.perf_counter() - t
         return H
 
@@ -776,6 +782,8 @@ class StepSolver:
         self._lookahead = LookaheadSwitch(self.settings.contact_lookahead > 1.0, bodies)
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
+        if s.contact_pattern is not None:
+            s.contact_pattern.folding = True  # each step tries folding again (see NewtonSettings.refold_after_distortion)
         try:
             return self._solve(x, x_prev, res, t_start, target_at_rest)
         finally:

@@ -118,3 +118,48 @@ def test_the_fold_check_applies_while_kinematic_tools_move():
     assert res.distorted_folds == 1 and pattern.growths == 1
     assert np.allclose(p, newton, rtol=1e-8, atol=1e-10 * np.abs(newton).max())
     assert q.shape == (1,)
+
+
+def _second_contact(pattern, dmap, asm, blocks, diag, soft: float = 1e-2):
+    """Assemble the same chain again with a new contact (vertices 5 and 20, outside the pattern so far)."""
+    data = asm.assemble_data([soft * blocks], [1.0], soft * diag)
+    C = _point_pair_hessian(5, 20, np.array([1.0, 0.0, 0.0]), 24, 1e4)
+    return pattern.assemble(data, C, dmap.global_to_free)
+
+
+@pytest.mark.parametrize("refold", [False, True])
+def test_after_a_distorted_fold_the_step_grows_instead_of_folding(refold):
+    """Once a fold has distorted a direction, the rest of the step grows the pattern for new couplings (no folded
+    factorisation thrown away), unless ``refold_after_distortion``; the next step tries folding again."""
+    pattern, M, _, g = _folded(scale=1e4)
+    solver = StepSolver(
+        _PatternOnly(pattern), NewtonSettings(refold_after_distortion=refold), make_linear_solver("scipy", DIM)
+    )
+    solver._undistorted(-solver._factorize(M)(g), g, NewtonResult())
+    assert pattern.folding is refold
+    _, dmap, asm, blocks, diag = _chain_problem()
+    folds, growths = pattern.folds, pattern.growths
+    _second_contact(pattern, dmap, asm, blocks, diag)
+    assert pattern.last_folded is refold
+    assert (pattern.folds, pattern.growths) == ((folds + 1, growths) if refold else (folds, growths + 1))
+
+
+def test_each_step_tries_folding_again():
+    """StepSolver.solve resets the pattern's folding before its first assembly."""
+    pattern, *_ = _folded(scale=1e4)
+    pattern.folding = False
+
+    class _Stop(Exception):
+        pass
+
+    solver = StepSolver(_PatternOnly(pattern), NewtonSettings(), make_linear_solver("scipy", DIM))
+    solver.system.contact = None
+    solver.system.step_constraint = None
+
+    def stop(*args, **kwargs):
+        raise _Stop
+
+    solver._solve = stop
+    with pytest.raises(_Stop):
+        solver.solve(np.zeros((24, DIM)))
+    assert pattern.folding
