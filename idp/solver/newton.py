@@ -117,10 +117,15 @@ class NewtonSettings:
     # and their solves took 22 and 35 Newton iterations, 9 and 16 with these checks, 9 and 7 never folding.
     fold_distortion: float = 0.5
     fold_stiffening: float = 0.02
-    # once a fold has distorted a direction in a step, the rest of that step grows the pattern instead of folding
-    # (False), skipping the folded factorisation that would mostly be thrown away: the stored dumplings of Fig. 21
-    # landing on the pile distorted 12 folds in 12 iterations, each costing a wasted 7-s factorisation
-    refold_after_distortion: bool = False
+    # in systems of at least fold_stop_min_dofs free DOFs, after fold_stop_after folds in a row have distorted their
+    # directions, the rest of the step grows the pattern instead of folding (0: folds always), skipping folded
+    # factorisations that would be thrown away: the stored dumplings of Fig. 21 (399,360 DOFs) landing on the pile
+    # distorted 12 folds in 12 iterations, each a wasted 7-s factorisation beside a 3.5-s analysis (12 iterations:
+    # 285 → 194 s, the same iterates). In small systems an analysis costs more than a factorisation and trying the
+    # fold pays: Fig. 1 (≈ 30K DOFs) took 1,459 Newton iterations in 647 s folding always, 1,869 in 830 s stopping
+    # after 2 (its fold and push steps are sensitive to any change of path, so part of that is chance)
+    fold_stop_after: int = 2
+    fold_stop_min_dofs: int = 200_000
     max_seconds: float | None = None  # wall-clock limit of one step (checked after each accepted iterate)
     max_memory: int | None = None  # bytes a step may use (on top of the memory available; None: that alone)
     memory_check: bool = True  # estimate each step's memory before factorising (see idp.solver.memory)
@@ -200,6 +205,7 @@ class StepSolver:
         self._row_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (indptr, held, positions)
         self._labels: BodyLabels | None = None  # the step's bodies, when islands may take their own steps
         self._islands_now = False  # whether this iteration's move may be split into islands
+        self._distorted_run = 0  # folds in a row whose directions were distorted (NewtonSettings.fold_stop_after)
         for wt in system.terms:
             if hasattr(wt.term, "inversion_eta"):
                 wt.term.inversion_eta = settings.inversion_eta
@@ -689,7 +695,8 @@ class StepSolver:
     def _fold_distorts(self, p_free: np.ndarray, g: np.ndarray) -> bool:
         """Whether the matrix just factorised was folded and the fold distorts its direction ``p_free`` = −M⁻¹g:
         its Newton residual ‖K·p‖ or the fold's stiffening along it beyond ``NewtonSettings.fold_distortion`` /
-        ``fold_stiffening`` (K = exact − M)."""
+        ``fold_stiffening`` (K = exact − M). After ``fold_stop_after`` distorting folds in a row (in a system of
+        ``fold_stop_min_dofs`` free DOFs or more) it turns the pattern's folding off for the rest of the step."""
         pattern = self.system.contact_pattern
         if pattern is None or not pattern.last_folded:
             return False
@@ -697,16 +704,20 @@ class StepSolver:
         keep = None if self._held is None else ~self._held
         residual = K @ p_free if keep is None else keep * (K @ (keep * p_free))
         curvature = -float(g @ p_free)  # pᵀMp, M·p being −g
-        return not (
+        distorts = not (
             np.linalg.norm(residual) <= self.settings.fold_distortion * np.linalg.norm(g)
             and abs(float(p_free @ residual)) <= self.settings.fold_stiffening * curvature
         )
+        self._distorted_run = self._distorted_run + 1 if distorts else 0
+        cfg = self.settings
+        if 0 < cfg.fold_stop_after <= self._distorted_run and g.size >= cfg.fold_stop_min_dofs:
+            pattern.folding = False  # the rest of the step grows (NewtonSettings.fold_stop_after)
+        return distorts
 
     def _unfolded_matrix(self, res: NewtonResult) -> sp.csr_matrix:
         """The last folded matrix without folding, on the pattern grown by its folded couplings (held DOFs held)."""
         res.distorted_folds += 1
         pattern = self.system.contact_pattern
-        pattern.folding = self.settings.refold_after_distortion
         t = time.perf_counter()
         H = self._hold(pattern.exact_matrix())
         res.timings["assembly"] += time.perf_counter() - t
@@ -782,8 +793,9 @@ class StepSolver:
         self._lookahead = LookaheadSwitch(self.settings.contact_lookahead > 1.0, bodies)
         if s.contact is not None:
             s.contact.hold_still(None)  # last step's held vertices move towards their new targets
+        self._distorted_run = 0
         if s.contact_pattern is not None:
-            s.contact_pattern.folding = True  # each step tries folding again (see NewtonSettings.refold_after_distortion)
+            s.contact_pattern.folding = True  # each step tries folding again
         try:
             return self._solve(x, x_prev, res, t_start, target_at_rest)
         finally:

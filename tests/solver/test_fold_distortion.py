@@ -127,21 +127,50 @@ def _second_contact(pattern, dmap, asm, blocks, diag, soft: float = 1e-2):
     return pattern.assemble(data, C, dmap.global_to_free)
 
 
-@pytest.mark.parametrize("refold", [False, True])
-def test_after_a_distorted_fold_the_step_grows_instead_of_folding(refold):
-    """Once a fold has distorted a direction, the rest of the step grows the pattern for new couplings (no folded
-    factorisation thrown away), unless ``refold_after_distortion``; the next step tries folding again."""
+@pytest.mark.parametrize("stop_after", [0, 1, 2])
+def test_distorted_folds_in_a_row_stop_the_step_folding(stop_after):
+    """After ``fold_stop_after`` folds in a row distorted their directions, the rest of the step grows the pattern
+    for new couplings (no folded factorisation thrown away); 0: it always folds."""
     pattern, M, _, g = _folded(scale=1e4)
     solver = StepSolver(
-        _PatternOnly(pattern), NewtonSettings(refold_after_distortion=refold), make_linear_solver("scipy", DIM)
+        _PatternOnly(pattern),
+        NewtonSettings(fold_stop_after=stop_after, fold_stop_min_dofs=g.size),
+        make_linear_solver("scipy", DIM),
     )
     solver._undistorted(-solver._factorize(M)(g), g, NewtonResult())
-    assert pattern.folding is refold
+    assert pattern.folding is (stop_after != 1)
     _, dmap, asm, blocks, diag = _chain_problem()
     folds, growths = pattern.folds, pattern.growths
-    _second_contact(pattern, dmap, asm, blocks, diag)
-    assert pattern.last_folded is refold
-    assert (pattern.folds, pattern.growths) == ((folds + 1, growths) if refold else (folds, growths + 1))
+    M2 = _second_contact(pattern, dmap, asm, blocks, diag)
+    if stop_after == 1:
+        assert not pattern.last_folded and (pattern.folds, pattern.growths) == (folds, growths + 1)
+        return
+    assert pattern.last_folded and (pattern.folds, pattern.growths) == (folds + 1, growths)
+    g2 = g.copy()
+    for v in (5, 20):
+        g2[dmap.global_to_free[v * DIM : v * DIM + DIM]] += np.array([1.0, 0.0, 0.0])
+    solver._undistorted(-solver._factorize(M2)(g2), g2, NewtonResult())
+    assert pattern.folding is (stop_after == 0)
+
+
+def test_a_kept_fold_ends_the_run_of_distorted_ones():
+    pattern, M, _, g = _folded(scale=1e-6)
+    solver = _solver(pattern)
+    solver._distorted_run = 1
+    assert solver._undistorted(-solver._factorize(M)(g), g, NewtonResult()) is not None
+    assert solver._distorted_run == 0 and pattern.folding
+
+
+def test_small_systems_keep_folding():
+    """Below ``fold_stop_min_dofs`` free DOFs (an analysis costing more than a factorisation) folds go on."""
+    pattern, M, _, g = _folded(scale=1e4)
+    solver = StepSolver(
+        _PatternOnly(pattern),
+        NewtonSettings(fold_stop_after=1, fold_stop_min_dofs=g.size + 1),
+        make_linear_solver("scipy", DIM),
+    )
+    solver._undistorted(-solver._factorize(M)(g), g, NewtonResult())
+    assert solver._distorted_run == 1 and pattern.folding
 
 
 def test_each_step_tries_folding_again():
