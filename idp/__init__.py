@@ -23,10 +23,13 @@ _os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "18")
 def _fix_mmap_threshold() -> None:
     # Large arrays freed between Newton iterations go back to the OS instead of staying in glibc's heap
     # (bunnyx30_13K late steps: peak RSS 813 -> 656 MB), while the heap keeps the few MB that smaller ones reuse
-    # every iteration (bunny_700: 4x fewer page faults); see idp._malloc. Set before the run allocates anything.
-    from idp._malloc import fix_mmap_threshold
+    # every iteration (bunny_700: 4x fewer page faults); and numpy's large arrays are not put on transparent huge
+    # pages, whose faults compacted memory for seconds (the stored Fig. 21 dumplings: a step 111 -> 82 s); see
+    # idp._malloc. Set before the run allocates anything.
+    from idp._malloc import decline_numpy_huge_pages, fix_mmap_threshold
 
     fix_mmap_threshold()
+    decline_numpy_huge_pages()
 
 
 _fix_mmap_threshold()

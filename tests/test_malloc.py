@@ -47,3 +47,33 @@ def test_heap_top_is_kept_between_iterations():
     pages = (2 << 20) // os.sysconf("SC_PAGE_SIZE")
     assert trimmed["faults"] > (_CYCLES - 1) * pages // 2, trimmed
     assert fixed["faults"] < (_CYCLES - 1) * pages // 20, fixed
+
+
+_HUGE = """
+import sys
+{first}
+import idp
+import numpy
+try:
+    from numpy._core.multiarray import _set_madvise_hugepage
+except ImportError:
+    from numpy.core.multiarray import _set_madvise_hugepage
+print(_set_madvise_hugepage(False))
+"""
+
+
+@pytest.mark.parametrize("numpy_first", [False, True])
+def test_numpy_large_arrays_are_kept_off_huge_pages(numpy_first):
+    """numpy's madvise(MADV_HUGEPAGE) is off whether numpy loads before idp or through it; a user's own
+    NUMPY_MADVISE_HUGEPAGE wins."""
+    script = _HUGE.format(first="import numpy" if numpy_first else "")
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+
+    def switch(extra: dict[str, str]) -> str:
+        out = subprocess.run(
+            [sys.executable, "-c", script], env={**env, **extra}, capture_output=True, text=True, check=True
+        )
+        return out.stdout.strip().splitlines()[-1]
+
+    assert switch({}) == "False"
+    assert switch({"NUMPY_MADVISE_HUGEPAGE": "1"}) == "True"
