@@ -50,7 +50,6 @@ def test_heap_top_is_kept_between_iterations():
 
 
 _HUGE = """
-import sys
 {first}
 import idp
 import numpy

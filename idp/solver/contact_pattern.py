@@ -205,7 +205,7 @@ class GrowingBlockPattern:
         self.fold_limit = max(64, base.nfv // 16) if fold_limit is None else int(fold_limit)
         self.folds = 0
         # False: missing couplings always grow the pattern (the Newton loop turns folding off for the rest of a step
-        # once a fold has distorted a direction there: StepSolver._unfolded_matrix)
+        # after repeated distorted folds in a large system: StepSolver._fold_distorts, NewtonSettings.fold_stop_after)
         self.folding = True
         self._correction: tuple | None = None  # exact − folded matrix after a fold, as (values, rows, cols, n) ...
         self._correction_matrix: sp.csr_matrix | None = None  # ... and as a matrix once asked for

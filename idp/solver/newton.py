@@ -717,9 +717,8 @@ class StepSolver:
     def _unfolded_matrix(self, res: NewtonResult) -> sp.csr_matrix:
         """The last folded matrix without folding, on the pattern grown by its folded couplings (held DOFs held)."""
         res.distorted_folds += 1
-        pattern = self.system.contact_pattern
         t = time.perf_counter()
-        H = self._hold(pattern.exact_matrix())
+        H = self._hold(self.system.contact_pattern.exact_matrix())
         res.timings["assembly"] += time.perf_counter() - t
         return H
 
