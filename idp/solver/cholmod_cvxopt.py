@@ -231,7 +231,7 @@ class CholmodSolver(LinearSolver):
         self.stats["symbolic"] += t2 - t1
         self.stats["symbolic_analyses"] += 1
 
-    def state(self) -> dict[str, np.ndarray]:
+    def _own_state(self) -> dict[str, np.ndarray]:
         """The ordering schedule (the last comparison's choice, analyses since it, the interval to the next) and
         the analysed pattern's fingerprint and ordering: a resumed run that first meets that same pattern takes
         that ordering without counting an analysis, as the uninterrupted run, which had it analysed, factorises
@@ -243,8 +243,8 @@ class CholmodSolver(LinearSolver):
             st["perm"] = np.zeros(0, np.int64) if self._perm is None else np.asarray(self._perm, dtype=np.int64)
         return st
 
-    def load_state(self, state: dict[str, np.ndarray]) -> None:
-        """Restore :meth:`state`. Only an optimisation for identical resumed runs: values that are missing (a
+    def _load_own_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`_own_state`. Only an optimisation for identical resumed runs: values that are missing (a
         checkpoint written before they were kept) or not as :meth:`state` writes them are ignored, and the solver
         then chooses afresh."""
 

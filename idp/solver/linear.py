@@ -31,6 +31,7 @@ Backends
 
 from __future__ import annotations
 
+import re
 import time
 from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any
@@ -63,6 +64,9 @@ class NotPositiveDefinite(SolverError):
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+_SIBLING_KEY = re.compile(r"sibling(\d+)__(.+)")
 
 
 def _new_stats() -> dict[str, float]:
@@ -248,6 +252,8 @@ class LinearSolver(ABC):
         self.stats: dict[str, float] = _new_stats()
         self.n: int = 0
         self.memory_guard: MemoryGuard | None = None
+        self._siblings: list[LinearSolver] = []  # made by sibling(), in order: their state is kept with this one's
+        self._sibling_states: dict[int, dict[str, np.ndarray]] = {}  # a checkpoint's, for siblings not yet made
 
     def _check_memory(
         self, indptr: np.ndarray | None, indices: np.ndarray | None, n: int, perm: np.ndarray | None
@@ -288,26 +294,59 @@ class LinearSolver(ABC):
         """Solve ``A x = b`` with the last factorisation (``b`` of shape (n,) or (n, k))."""
 
     def reset_stats(self) -> None:
-        """Zero the timing and count statistics."""
-        self.stats = _new_stats()
+        """Zero the timing and count statistics (in place: siblings count into the same dictionary)."""
+        self.stats.clear()
+        self.stats.update(_new_stats())
 
     def state(self) -> dict[str, np.ndarray]:
         """What a run's checkpoint keeps of this solver so that a resumed run factorises as the uninterrupted one
-        would (backends whose choices depend on their history: :class:`~idp.solver.cholmod_cvxopt.CholmodSolver`).
-        None here."""
-        return {}
+        would: the backend's own history-dependent choices (:meth:`_own_state`) and, under ``sibling{i}__``, those
+        of each solver :meth:`sibling` has made (the Newton loop's factorisation without held DOFs has its own)."""
+        st = dict(self._own_state())
+        for i, other in enumerate(self._siblings):
+            for key, value in other.state().items():
+                st[f"sibling{i}__{key}"] = value
+        return st
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
-        """Restore :meth:`state` (nothing here)."""
+        """Restore :meth:`state`: this solver's part now, each sibling's when it exists (now, or when
+        :meth:`sibling` makes it). Keys not written by :meth:`state` are ignored."""
+        own: dict[str, np.ndarray] = {}
+        siblings: dict[int, dict[str, np.ndarray]] = {}
+        for key, value in state.items():
+            match = _SIBLING_KEY.fullmatch(key)
+            if match is None:
+                own[key] = value
+            else:
+                siblings.setdefault(int(match.group(1)), {})[match.group(2)] = value
+        self._load_own_state(own)
+        self._sibling_states = {}
+        for i, st in siblings.items():
+            if i < len(self._siblings):
+                self._siblings[i].load_state(st)
+            else:
+                self._sibling_states[i] = st
+
+    def _own_state(self) -> dict[str, np.ndarray]:
+        """This backend's history-dependent choices (see :class:`~idp.solver.cholmod_cvxopt.CholmodSolver`); none
+        here."""
+        return {}
+
+    def _load_own_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`_own_state` (nothing here)."""
         return None
 
     def sibling(self) -> LinearSolver:
         """A solver of the same kind and settings with its own pattern work (a second system solved beside this
-        one, e.g. :class:`idp.solver.held_reduction.HeldReduction`'s), counting into the same ``stats`` and
-        checked by the same memory guard."""
+        one, e.g. :class:`idp.solver.held_reduction.HeldReduction`'s), counting into the same ``stats``, checked
+        by the same memory guard, and kept in this solver's :meth:`state`."""
         other = self._fresh()
         other.stats = self.stats
         other.memory_guard = self.memory_guard
+        pending = self._sibling_states.pop(len(self._siblings), None)
+        if pending is not None:
+            other.load_state(pending)
+        self._siblings.append(other)
         return other
 
     def _fresh(self) -> LinearSolver:

@@ -498,6 +498,41 @@ def test_cholmod_state_lets_a_resumed_solver_make_the_same_choices(resume_at: in
     assert resumed is not None and whole.stats.get("ordering_checks", 0) >= 2  # the schedule compared again
 
 
+@pytest.mark.parametrize("made_before_load", [False, True])
+def test_a_siblings_state_is_kept_with_its_solvers(made_before_load: bool) -> None:
+    """The Newton loop factorises the system without its held DOFs on a sibling solver (HeldReduction), whose
+    orderings depend on its own history: the main solver's state carries it, so a resumed run's sibling (made
+    before or after the checkpoint is loaded) chooses as the uninterrupted run's does."""
+    patterns = [make_matrix(nx=6, seed=0, contacts=c) for c in (0, 4, 8, 12, 16, 20, 24, 28)]
+    whole = _cholmod_solver(3)
+    whole_sibling = whole.sibling()
+    b = np.random.default_rng(5).standard_normal(patterns[0].shape[0])
+    for A in patterns[:3]:
+        whole.factorize(patterns[0])
+        whole_sibling.factorize(A)
+    state = whole.state()
+    assert "sibling0__schedule" in state and "sibling0__perm" in state
+    resumed = _cholmod_solver(3)
+    sibling = resumed.sibling() if made_before_load else None
+    resumed.load_state(state)
+    sibling = sibling or resumed.sibling()
+    for A in patterns[2:]:
+        whole_sibling.factorize(A)
+        sibling.factorize(A)
+        assert np.array_equal(_ordering_of(sibling), _ordering_of(whole_sibling))
+        assert sibling.state()["schedule"].tolist() == whole_sibling.state()["schedule"].tolist()
+        assert np.allclose(sibling.solve(b), whole_sibling.solve(b), rtol=1e-10, atol=1e-12)
+    assert resumed.state()["sibling0__schedule"].tolist() == whole.state()["sibling0__schedule"].tolist()
+
+
+def test_reset_stats_keeps_siblings_counting_into_the_same_statistics() -> None:
+    solver = _cholmod_solver(3)
+    sibling = solver.sibling()
+    solver.reset_stats()
+    sibling.factorize(make_matrix(nx=4, seed=0))
+    assert solver.stats["factorizations"] == 1
+
+
 def test_cholmod_state_of_another_pattern_is_not_taken() -> None:
     solver = _cholmod_solver(3)
     solver.factorize(make_matrix(nx=6, seed=0, contacts=8))
