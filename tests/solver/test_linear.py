@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import pytest
@@ -505,7 +505,7 @@ def test_a_siblings_state_is_kept_with_its_solvers(made_before_load: bool) -> No
     before or after the checkpoint is loaded) chooses as the uninterrupted run's does."""
     patterns = [make_matrix(nx=6, seed=0, contacts=c) for c in (0, 4, 8, 12, 16, 20, 24, 28)]
     whole = _cholmod_solver(3)
-    whole_sibling = whole.sibling()
+    whole_sibling = cast("CholmodSolver", whole.sibling())
     b = np.random.default_rng(5).standard_normal(patterns[0].shape[0])
     for A in patterns[:3]:
         whole.factorize(patterns[0])
@@ -513,9 +513,9 @@ def test_a_siblings_state_is_kept_with_its_solvers(made_before_load: bool) -> No
     state = whole.state()
     assert "sibling0__schedule" in state and "sibling0__perm" in state
     resumed = _cholmod_solver(3)
-    sibling = resumed.sibling() if made_before_load else None
+    early = resumed.sibling() if made_before_load else None
     resumed.load_state(state)
-    sibling = sibling or resumed.sibling()
+    sibling = cast("CholmodSolver", early if early is not None else resumed.sibling())
     for A in patterns[2:]:
         whole_sibling.factorize(A)
         sibling.factorize(A)
