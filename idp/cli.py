@@ -39,7 +39,9 @@ def _set_threads(n: int | None) -> None:
     the environment at every compile: a different value there made the next kernel compiled in the process fail
     ("Cannot set NUMBA_NUM_THREADS to a different value once the threads have been launched"; a second ``main``
     call with another ``--threads`` in one process, on a cold kernel cache). So that variable is left as it is then,
-    and the count applies through :func:`numba.set_num_threads` (at most the pool's size)."""
+    and the count applies through :func:`numba.set_num_threads` (at most the pool's size).
+    Where numba was imported but its pool not started, its configuration is re-read before the count is applied,
+    so the pool starts at the new size."""
     if not n:
         return
     pool_started = bool(getattr(sys.modules.get("numba.np.ufunc.parallel"), "_is_initialized", False))
@@ -53,6 +55,11 @@ def _set_threads(n: int | None) -> None:
     if "numba" in sys.modules:
         import numba
 
+        if not pool_started:
+            # numba read NUMBA_NUM_THREADS when it was imported; without a re-read, set_num_threads below starts
+            # the pool at that size, and the next kernel compiled in the process (a cold cache) fails on the
+            # variable just set
+            numba.core.config.reload_config()
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     from threadpoolctl import threadpool_limits
 
