@@ -62,8 +62,12 @@ class LookaheadSwitch:
     def after_step(self, ccd_fraction: np.ndarray | float, used: np.ndarray | bool, allowed: bool) -> None:
         """Decide the next iteration's matrix from the accepted step (``ccd_fraction`` and ``used`` per body or one
         value for all): on after a step CCD cut below LOOKAHEAD_TRIGGER while ``allowed`` (a collision set, no
-        kinematic tool moving) and not yet futile."""
+        kinematic tool moving) and not yet futile; off, whatever the cut, after a majorant's direction within tol,
+        so that an exact direction judges it (kept on there, a majorant's steps that CCD cut every time never let an
+        exact direction end the solve: Fig. 2's late steps, 44–99 look-ahead iterations in a row, every decrement
+        within tol)."""
         cut = np.broadcast_to(np.asarray(ccd_fraction) < LOOKAHEAD_TRIGGER, self.on.shape)
         used = np.broadcast_to(np.asarray(used, dtype=bool), self.on.shape)
         self.futile += cut & self._after_settled & ~used  # the majorant said "here", the exact direction went on
-        self.on = cut & (self.futile < self.max_futile) & bool(self.enabled and allowed)
+        allowed_now = bool(self.enabled and allowed)
+        self.on = cut & ~self._settled_majorant & (self.futile < self.max_futile) & allowed_now

@@ -33,6 +33,27 @@ def test_only_an_exact_direction_ends_the_solve():
     assert sw.futile == 0
 
 
+def test_a_majorant_within_tol_is_judged_by_an_exact_direction_even_when_its_step_was_cut():
+    """A majorant's direction within tol whose own step CCD cuts: the next matrix is still exact (were it on again,
+    majorants cut every time would never let the solve end: Fig. 2's late steps ran 44–99 such iterations)."""
+    sw = LookaheadSwitch(True)
+    sw.may_end_solve(False, used=False)
+    sw.after_step(CUT, used=False, allowed=True)
+    assert sw.on
+    assert not sw.may_end_solve(True, used=True)  # the majorant within tol ...
+    sw.after_step(CUT, used=True, allowed=True)  # ... and its step cut short
+    assert not sw.on  # the next direction is exact
+    assert sw.may_end_solve(True, used=False)  # and, within tol, ends the solve
+    sw2 = LookaheadSwitch(True)
+    sw2.may_end_solve(False, used=False)
+    sw2.after_step(CUT, used=False, allowed=True)
+    sw2.may_end_solve(True, used=True)
+    sw2.after_step(CUT, used=True, allowed=True)
+    assert not sw2.may_end_solve(False, used=False)  # the exact one is not within tol ...
+    sw2.after_step(CUT, used=False, allowed=True)  # ... and cut: a futile round, the look-ahead on again
+    assert sw2.futile == 1 and sw2.on
+
+
 def test_futile_alternation_turns_the_look_ahead_off_for_the_solve():
     sw = LookaheadSwitch(True)
     sw.may_end_solve(False, used=False)
