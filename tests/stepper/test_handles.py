@@ -141,6 +141,34 @@ def test_blocked_targets_stop_the_doubling():
     assert bc.settled and not bc.met and bc.report(x, 1e-3)["blocked"] and bc.doublings == 2
 
 
+def test_blocked_steps_do_not_hand_their_doublings_on():
+    """A handle blocked step after step (a tool jammed on an obstacle): the doublings that brought it no closer are
+    dropped between steps, so κ_B does not compound from step to step; a doubling that helped is kept."""
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    start = bc.kappa
+    for _ in range(5):  # each step: doublings with shrinking gains, then blocked
+        x[0] = 0.5
+        assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]
+        x[0] = 0.502
+        assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]
+        x[0] = 0.503
+        assert not bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.settled and not bc.met
+        assert bc.kappa == 4.0 * start  # raised within the step ...
+        bc.relax()
+        assert bc.kappa == max(1.0, 0.5 * start)  # ... but not handed on
+        x = bc.begin(np.zeros((2, 1)), lambda x, P: 0.0)
+        start = bc.kappa
+    # a doubling that brought the handle min_progress closer is kept, even when the step then ends blocked
+    x[0] = 0.5
+    assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]  # κ 1 → 2
+    x[0] = 0.75  # half the residual: that doubling helped
+    assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]  # κ 2 → 4
+    x[0] = 0.751  # a gain below min_progress, and smaller than the one before: blocked at κ 4
+    assert not bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.settled and not bc.met and bc.kappa == 4.0
+    bc.relax()
+    assert bc.kappa == 1.0  # κ_B 2, which brought the handle closer, halved between steps (4 would give 2)
+
+
 def test_a_blocked_snap_is_retried_until_the_penalty_brings_the_vertices_closer():
     """The snap's last bit would reach a free body (within CCD's margin of the target while the residual is above
     2e-5): the penalty stays on while Newton converges and κ_B doubles; the snap goes through once the residual
