@@ -76,14 +76,10 @@ def test_recorder_roundtrip_and_crash(tmp_path: Path) -> None:
     assert len(data["steps"]) == 5
 
 
-def test_recorder_many_steps_cheap(tmp_path: Path) -> None:
-    import time
-
+def test_recorder_many_steps(tmp_path: Path) -> None:
     rec = StatsRecorder(tmp_path / "stats.json", {})
     rec_fields = {f"f{i}": float(i) for i in range(20)}
-    t0 = time.perf_counter()
     for k in range(1000):
         rec.add_step({"step": k, **rec_fields})
-    dt = time.perf_counter() - t0
-    assert len(load_stats(tmp_path / "stats.json")["steps"]) == 1000
-    assert dt < 10.0, f"1000 steps took {dt:.1f} s"
+    steps = load_stats(tmp_path / "stats.json")["steps"]
+    assert [s["step"] for s in steps] == list(range(1000)) and steps[-1]["f19"] == 19.0
