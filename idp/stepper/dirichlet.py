@@ -24,7 +24,13 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    vertex less than ``min_progress`` closer (contact keeps cutting the steps), the bound vertices are held
    where they are and the penalty is dropped, so the step converges instead of crawling to the iteration cap.
    An iterate whose cut step is ``STEP_GROWTH`` (1.5) times longer than every earlier cut step of the solve does
-   not count: the pair that cuts the steps is opening.
+   not count: the pair that cuts the steps is opening. A step whose targets are those the previous step ended
+   blocked on (each within ``tolerance`` of its last one), and whose feasible first move would bring no bound
+   vertex ``tolerance`` closer, holds
+   the bound vertices where they are from the start (no first move, no penalty; ``held_blocked`` in the report):
+   that first move is applied unchecked and CCD lets the blocking pair close to ~1/8 of its gap, so a handle
+   blocked for many steps squeezed its closest gap 8× a step down to the coordinates' resolution (Fig. 2's
+   bundle: 1.7e-14 → 2.1e-15 → 4.9e-16 → 3e-16), while the re-run penalty only pressed it harder.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other); the penalty is dropped and Newton continues to
    convergence. When that last move would collide (a free body within CCD's margin of the targets), the penalty
@@ -141,6 +147,8 @@ class DirichletTargets:
         self._multiplier = np.zeros((0, dim))  # per penalised vertex: the augmented-Lagrangian force λ_k
         self.groups: list[tuple[str, int]] = []
         self._held = np.zeros(self.masses.size * dim, dtype=bool)
+        # (bound vertices, targets) of the last step when it ended blocked, else None (:meth:`relax`, ``begin``)
+        self._last_blocked: tuple[np.ndarray, np.ndarray] | None = None
         self._reset()
 
     def _reset(self) -> None:
@@ -159,6 +167,7 @@ class DirichletTargets:
         self._multiplier = np.zeros((int(np.count_nonzero(self._penalised)), self.dim))
         self.kinematic_moves = 0
         self.frozen = False
+        self.held_blocked = False  # held from the start: the targets the last step ended blocked on (``begin``)
         self._snap_residual: float | None = None  # the worst residual when κ_B was last doubled for a blocked snap
         self._snap_doublings = 0
         self._start_distance2 = 0.0  # Σ_k ‖x_k − x̃_k‖² at the step's start (the total-progress rule)
@@ -211,6 +220,14 @@ class DirichletTargets:
         P = self._move(x, everything)
         alpha = feasible_step(x, P) if np.any(P) else 1.0
         self.feasible_fraction = float(alpha)
+        if alpha < 1.0 and self._still_blocked(P, alpha):
+            # the targets the last step could not reach, unchanged, and still no room towards them: the first move
+            # would only press the blocking pair closer (CCD keeps ~10 % of its gap, and nothing checks the energy
+            # there), and the penalty only press it harder. Hold the bound vertices; the rest of the mesh relaxes.
+            self._hold(met=False)
+            self._blocked = True
+            self.held_blocked = True
+            return x
         if alpha >= 1.0:
             x = x.copy()
             x[self.vertices] = self.targets  # exactly on target (x + 1·P can differ in the last bit)
@@ -226,6 +243,20 @@ class DirichletTargets:
             # they are while the others are pulled, instead of being held by the penalty alone
             self._hold_vertices(self.vertices[self._dof & ~np.any(moves != 0.0, axis=1)])
         return x
+
+    def _still_blocked(self, P: np.ndarray, alpha: float) -> bool:
+        """Whether this step's targets are those the last step ended blocked on (the same bound vertices, each
+        target less than ``tolerance`` from its last one: an incremental handle's targets follow the vertices a
+        little) and the feasible first move would bring no bound vertex ``tolerance`` closer."""
+        last = self._last_blocked
+        if last is None or not self.detect_blocked:
+            return False
+        vertices, targets = last
+        if not np.array_equal(vertices, self.vertices):
+            return False
+        if float(np.linalg.norm(self.targets - targets, axis=1).max(initial=0.0)) >= self.tolerance:
+            return False
+        return alpha * float(np.linalg.norm(P[self.vertices], axis=1).max(initial=0.0)) < self.tolerance
 
     def accept(self, x: np.ndarray) -> None:
         self._reset()
@@ -426,9 +457,27 @@ class DirichletTargets:
         compounded from step to step while the targets stayed blocked, and each step's stiffer penalty crushed the
         gaps further (Fig. 22's vase jammed on the stems: κ_B 1.6e5 → 3.3e8 and the closest gap 3.5e-11 → 6.7e-14
         in three frames)."""
-        if self._blocked and not self._met:
+        blocked = self._blocked and not self._met
+        self._last_blocked = (self.vertices.copy(), self.targets.copy()) if blocked and self.active else None
+        if blocked:
             self.kappa = self._kappa_useful
         self.kappa = max(self.kappa_initial, 0.5 * self.kappa)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """What the next step depends on beyond κ_B: the targets the last step ended blocked on (for a checkpoint)."""
+        if self._last_blocked is None:
+            return {}
+        return {"blocked_vertices": self._last_blocked[0], "blocked_targets": self._last_blocked[1]}
+
+    def load_state(self, st: dict[str, np.ndarray]) -> None:
+        if "blocked_vertices" in st and "blocked_targets" in st:
+            v = np.asarray(st["blocked_vertices"], dtype=np.int64)
+            t = np.asarray(st["blocked_targets"], dtype=float)
+            if t.shape != (v.size, self.dim):
+                raise ValueError(f"checkpoint: blocked_targets has shape {t.shape}, expected {(v.size, self.dim)}")
+            self._last_blocked = (v, t)
+        else:
+            self._last_blocked = None
 
     def report(self, x: np.ndarray, dhat: float | None) -> dict:
         """Per-step statistics: residual (max and RMS distance to target, absolute and / d̂), κ_B, α, met."""
@@ -445,6 +494,7 @@ class DirichletTargets:
             "met": bool(self._met),
             "blocked": bool(self._blocked),
             "frozen_after_stall": bool(self.frozen),
+            "held_blocked": bool(self.held_blocked),
             "residual_max": mx,
             "residual_rms": rms,
             "residual_max_over_dhat": mx / dhat if dhat else None,

@@ -171,6 +171,7 @@ class HandleSet:
             for k, v in h.state().items():
                 out[f"handle{i}_{k}"] = v
         out["kappa_B"] = np.array(self.constraint.kappa)
+        out.update({f"dirichlet_{k}": v for k, v in self.constraint.state().items()})
         return out
 
     def load_state(self, st: dict[str, np.ndarray]) -> None:
@@ -178,6 +179,7 @@ class HandleSet:
             h.load_state({k.split("_", 1)[1]: v for k, v in st.items() if k.startswith(f"handle{i}_")})
         if "kappa_B" in st:
             self.constraint.kappa = float(st["kappa_B"])
+        self.constraint.load_state({k.split("_", 1)[1]: v for k, v in st.items() if k.startswith("dirichlet_")})
 
 
 def check_static_overlaps(handles: list[Handle], num_steps: int) -> None:

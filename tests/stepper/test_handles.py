@@ -146,7 +146,7 @@ def test_blocked_steps_do_not_hand_their_doublings_on():
     dropped between steps, so κ_B does not compound from step to step; a doubling that helped is kept."""
     bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
     start = bc.kappa
-    for _ in range(5):  # each step: doublings with shrinking gains, then blocked
+    for k in range(5):  # each step: doublings with shrinking gains, then blocked
         x[0] = 0.5
         assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]
         x[0] = 0.502
@@ -156,7 +156,9 @@ def test_blocked_steps_do_not_hand_their_doublings_on():
         assert bc.kappa == 4.0 * start  # raised within the step ...
         bc.relax()
         assert bc.kappa == max(1.0, 0.5 * start)  # ... but not handed on
+        bc.set_targets(np.array([0]), np.array([[1.0 + 1e-3 * (k + 1)]]))  # the tool driven on, still jammed
         x = bc.begin(np.zeros((2, 1)), lambda x, P: 0.0)
+        assert not bc.settled
         start = bc.kappa
     # a doubling that brought the handle min_progress closer is kept, even when the step then ends blocked
     x[0] = 0.5
@@ -167,6 +169,76 @@ def test_blocked_steps_do_not_hand_their_doublings_on():
     assert not bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.settled and not bc.met and bc.kappa == 4.0
     bc.relax()
     assert bc.kappa == 1.0  # κ_B 2, which brought the handle closer, halved between steps (4 would give 2)
+
+
+def _jam(bc: DirichletTargets, x: np.ndarray) -> None:
+    """Doublings with shrinking gains at near-converged iterates: the step ends blocked."""
+    for pos in (0.5, 0.502):
+        x[0] = pos
+        assert bc.after_iterate(x, True, lambda x, P: 0.0)[1]
+    x[0] = 0.503
+    assert not bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.settled and not bc.met
+
+
+def test_the_targets_a_step_ended_blocked_on_are_held_from_the_start_of_the_next():
+    """The same targets, still with no room towards them: the next step neither moves the bound vertices (the
+    first move, unchecked, would only press the blocking pair closer) nor turns the penalty on; they are held
+    where they are and the step is reported blocked."""
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    _jam(bc, x)
+    bc.relax()
+    room = 1e-7  # the feasible move: 1e-7 of the way (below the tolerance)
+    moved = bc.begin(x.copy(), lambda x, P: room)
+    assert np.array_equal(moved, x)  # no first move
+    assert bc.settled and not bc.met and bc.penalty_value(moved) == 0.0
+    assert bc.held_dofs()[0] and not bc.held_dofs()[1]  # the bound vertex held, the free one optimised
+    report = bc.report(moved, None)
+    assert report["held_blocked"] and report["blocked"] and not report["met"]
+    assert bc.after_iterate(moved, True, lambda x, P: room) == (moved, False)
+    # ended blocked again: the step after holds them too, also when the targets moved a little less than the
+    # tolerance (an incremental handle's targets follow the vertices)
+    bc.relax()
+    bc.set_targets(np.array([0]), np.array([[1.0 + 0.9e-6]]))
+    assert np.array_equal(bc.begin(moved.copy(), lambda x, P: room), moved) and bc.report(moved, None)["held_blocked"]
+
+
+@pytest.mark.parametrize("change", ["targets", "room", "met"])
+def test_blocked_targets_are_not_held_when_something_changed(change):
+    """Targets moved by the tolerance or more (an animation's next frame), a feasible move at least the tolerance
+    long, or a last step that met its targets: the step starts as §4.3 says (the feasible first move, then the
+    penalty)."""
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    if change == "met":
+        bc.begin(x, lambda x, P: 1.0)  # on target at once
+    else:
+        _jam(bc, x)
+    bc.relax()
+    if change == "targets":
+        bc.set_targets(np.array([0]), np.array([[1.0 + 2e-6]]))
+    room = 1e-3 if change == "room" else 1e-7
+    start = x.copy()
+    moved = bc.begin(start, lambda x, P: room)
+    assert not bc.settled and not bc.report(moved, None)["held_blocked"]
+    assert moved[0, 0] == pytest.approx(start[0, 0] + room * (bc.targets[0, 0] - start[0, 0]), rel=1e-12)
+    assert bc.penalty_value(moved) > 0.0
+
+
+def test_checkpoint_keeps_the_targets_a_step_ended_blocked_on():
+    """A resumed run holds blocked targets from the same step as the uninterrupted one."""
+    bc, x = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    _jam(bc, x)
+    bc.relax()
+    st = bc.state()
+    assert set(st) == {"blocked_vertices", "blocked_targets"}
+    fresh, _ = _one_handle(tolerance=1e-6, kappa_initial=1.0, min_progress=0.01)
+    fresh.load_state(st)
+    fresh.begin(x.copy(), lambda x, P: 1e-7)
+    assert fresh.report(x, None)["held_blocked"]
+    fresh.load_state({})  # a checkpoint from a step that did not end blocked (or from before this was kept)
+    fresh.begin(x.copy(), lambda x, P: 1e-7)
+    assert not fresh.report(x, None)["held_blocked"]
+    with pytest.raises(ValueError, match="blocked_targets"):
+        fresh.load_state({"blocked_vertices": np.array([0]), "blocked_targets": np.zeros((2, 1))})
 
 
 def test_a_blocked_snap_is_retried_until_the_penalty_brings_the_vertices_closer():
