@@ -353,6 +353,43 @@ def _cmd_check(args) -> int:
     return 0 if bad == 0 else 1
 
 
+def _cmd_render(args) -> int:
+    from idp.output.run_render import render_run
+
+    run = Path(args.run)
+    dim, up = args.dim, args.up
+    resolved = run / "scene.resolved.toml"
+    if resolved.is_file() and (dim is None or up is None):
+        # the run's own scene says how to draw it: read as data only (a stage's scene names files relative to
+        # where the run was started, and the picture needs none of them)
+        import tomllib
+
+        try:
+            raw = tomllib.loads(resolved.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            raw = {}
+        scene_dim = raw.get("dim") if raw.get("dim") in (2, 3) else 3
+        dim = scene_dim if dim is None else dim
+        if up is None:
+            from idp.output.up_axis import up_axis
+
+            try:
+                up = up_axis(dim, str((raw.get("output") or {}).get("up", "auto")), raw.get("gravity"))
+            except (TypeError, ValueError):  # a hand-edited scene: draw with z up
+                up = "z"
+    out = render_run(
+        run,
+        args.output or run / "render.png",
+        dim=dim or 3,
+        steps=args.steps,
+        views=args.views,
+        up=up or "z",
+        hide_obstacles=args.hide_obstacles,
+    )
+    print(out)
+    return 0
+
+
 def _cmd_demo(args) -> int:
     _set_threads(args.threads)
     from idp._heap import freeze_startup_heap
@@ -564,6 +601,18 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="report counts, closedness, inverted/degenerate elements, self-intersections")
     c.add_argument("meshes", nargs="+")
     c.set_defaults(func=_cmd_check)
+
+    rr = sub.add_parser("render", help="draw a run's frames: chosen steps side by side, or one step from several views")
+    rr.add_argument("run", help="a run's (or a stage's) output folder, holding vtu/frame_NNNNN.vtu")
+    rr.add_argument("-o", "--output", help="the PNG to write (default: RUN/render.png)")
+    rr.add_argument("--steps", type=int, nargs="+", help="steps to draw (default: the first and last frame written)")
+    rr.add_argument(
+        "--views", nargs="+", choices=["oblique", "side", "front", "above"], help="draw the last step from these views"
+    )
+    rr.add_argument("--hide-obstacles", action="store_true", help="leave the obstacles (tools, cages) out")
+    rr.add_argument("--dim", type=int, choices=[2, 3], help="default: the run's scene.resolved.toml, else 3")
+    rr.add_argument("--up", choices=["x", "y", "z"], help="the axis drawn upwards (default: the run's scene, else z)")
+    rr.set_defaults(func=_cmd_render)
 
     d = sub.add_parser("demo", help="grow a generated blob inside a generated hourglass cage")
     d.add_argument("-o", "--output", default="out/demo")

@@ -633,13 +633,9 @@ def _sticky(scene, parts, system) -> None:
 
 def picture_up_axis(scene) -> str:
     """The axis drawn upwards in pictures: the scene's ``output.up``, or (auto) the axis most against gravity."""
-    up = scene.output.up
-    if up != "auto":
-        return up
-    g = np.asarray(scene.gravity or [0.0, 0.0, 0.0], dtype=float)
-    if scene.dim != 3 or not np.any(g):
-        return "z"
-    return "xyz"[int(np.argmax(np.abs(g)))]
+    from idp.output.up_axis import up_axis
+
+    return up_axis(scene.dim, scene.output.up, scene.gravity)
 
 
 def _repair_frames(scene, shells, terms: list[WeightedTerm], preserved: set):
