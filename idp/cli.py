@@ -362,7 +362,7 @@ def _cmd_render(args) -> int:
     if resolved.is_file() and (dim is None or up is None):
         # the run's own scene says how to draw it: read as data only (a stage's scene names files relative to
         # where the run was started, and the picture needs none of them)
-        import tomllib
+        from idp.scene.load import tomllib  # tomli before Python 3.11
 
         try:
             raw = tomllib.loads(resolved.read_text(encoding="utf-8"))
