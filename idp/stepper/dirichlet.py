@@ -26,11 +26,11 @@ For the bound vertices k ∈ B with this step's targets x̃_k:
    An iterate whose cut step is ``STEP_GROWTH`` (1.5) times longer than every earlier cut step of the solve does
    not count: the pair that cuts the steps is opening. A step whose targets are those the previous step ended
    blocked on (each within ``tolerance`` of its last one), and whose feasible first move would bring no bound
-   vertex ``tolerance`` closer, holds
-   the bound vertices where they are from the start (no first move, no penalty; ``held_blocked`` in the report):
-   that first move is applied unchecked and CCD lets the blocking pair close to ~1/8 of its gap, so a handle
-   blocked for many steps squeezed its closest gap 8× a step down to the coordinates' resolution (Fig. 2's
-   bundle: 1.7e-14 → 2.1e-15 → 4.9e-16 → 3e-16), while the re-run penalty only pressed it harder.
+   vertex ``tolerance`` closer, holds the bound vertices where they are from the start (no first move, no
+   penalty; ``held_blocked`` in the report): that first move is applied unchecked and CCD lets the blocking pair
+   close to ~1/8 of its gap, so a handle blocked for many steps squeezed its closest gap 8× a step down to the
+   coordinates' resolution (Fig. 2's bundle: 1.7e-14 → 2.1e-15 → 4.9e-16 → 3e-16), while the re-run penalty
+   only pressed it harder.
 3. Once every bound vertex is within ``tolerance`` of its target, the bound vertices are put exactly on their
    targets (by a feasible move: it is checked like any other); the penalty is dropped and Newton continues to
    convergence. When that last move would collide (a free body within CCD's margin of the targets), the penalty
@@ -474,7 +474,7 @@ class DirichletTargets:
             v = np.asarray(st["blocked_vertices"], dtype=np.int64)
             t = np.asarray(st["blocked_targets"], dtype=float)
             if t.shape != (v.size, self.dim):
-                raise ValueError(f"checkpoint: blocked_targets has shape {t.shape}, expected {(v.size, self.dim)}")
+                raise ValueError(f"blocked_targets has shape {t.shape}, expected {(v.size, self.dim)}")
             self._last_blocked = (v, t)
         else:
             self._last_blocked = None

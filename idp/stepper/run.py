@@ -90,7 +90,10 @@ def _load_condition_states(ck: dict[str, np.ndarray], system, path: Path) -> Non
     for i, cond in enumerate(system.conditions):
         if hasattr(cond, "load_state"):
             pre = f"cond{i}__"
-            cond.load_state({k[len(pre) :]: v for k, v in ck.items() if k.startswith(pre)})
+            try:
+                cond.load_state({k[len(pre) :]: v for k, v in ck.items() if k.startswith(pre)})
+            except ValueError as exc:
+                raise SolverError(f"checkpoint {path}: {exc}; remove it to start the run over") from None
     if getattr(system, "contact_pattern", None) is not None:
         try:
             system.contact_pattern.load_state(

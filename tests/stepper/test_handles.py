@@ -671,6 +671,23 @@ def test_resume_restores_handles_selected_during_the_run(tmp_path):
     np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
 
 
+def test_a_damaged_blocked_state_in_the_checkpoint_is_named(tmp_path):
+    """Blocked targets of the wrong shape in a checkpoint: an error naming the checkpoint, not a traceback."""
+    from idp.errors import SolverError
+
+    lift = {"name": "lift", "select": RIGHT, "motion": {"type": "translate", "velocity": [0, 1.0, 0]}}
+    simulate(beam_scene([lift], steps=1), tmp_path / "run", progress=False)
+    path = tmp_path / "run" / "checkpoint.npz"
+    ck = dict(np.load(path))
+    (key,) = [k for k in ck if k.endswith("__kappa_B")]
+    pre = key.removesuffix("kappa_B")
+    ck[pre + "dirichlet_blocked_vertices"] = np.array([0, 1])
+    ck[pre + "dirichlet_blocked_targets"] = np.zeros((3, 3))
+    np.savez(path, **ck)
+    with pytest.raises(SolverError, match=r"checkpoint .*checkpoint\.npz: blocked_targets has shape \(3, 3\)"):
+        simulate(beam_scene([lift], steps=2), tmp_path / "run", progress=False, resume=True)
+
+
 def test_handle_selects_a_vertex_group_read_from_the_mesh_file(tmp_path):
     import meshio
 
