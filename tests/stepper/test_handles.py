@@ -396,6 +396,30 @@ def test_handle_pushed_into_an_obstacle_keeps_injectivity_and_reports_the_residu
     assert min(r["min_distance"] for r in recs) > 0
 
 
+def test_a_handle_held_blocked_step_after_step_keeps_its_gap_and_resumes_the_same(tmp_path):
+    """A tip pushed into a block, its target reached by the quota and then unchanged: from step 2 the blocked tip is
+    held where step 1 left it, so the steps are short and the gap the penalty had pressed to ~1e-9 opens again
+    (measured before the rule: steps 2–6 took 32–38 iterations each, the gap back at 1.7e-9 every other step).
+    A run resumed between held steps gives the uninterrupted run's positions."""
+    block = {
+        "name": "block",
+        "kind": "obstacle",
+        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
+    }
+    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
+    whole = simulate(beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "whole", progress=False)
+    recs = certified(whole)
+    first, held = recs[0], recs[1:]
+    assert first["dirichlet"]["blocked"] and not first["dirichlet"]["held_blocked"]
+    assert all(r["dirichlet"]["held_blocked"] and not r["dirichlet"]["met"] for r in held)
+    assert all(r["newton_iterations"] <= 10 for r in held)
+    assert min(r["min_distance"] for r in held) > 100 * first["min_distance"]
+    simulate(beam_scene([tip], steps=3, extra_objects=[block]), tmp_path / "split", progress=False)
+    resumed = simulate(beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "split", progress=False, resume=True)
+    assert [r["dirichlet"]["held_blocked"] for r in resumed.step_records[3:]] == [True] * 3
+    np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
+
+
 def test_unmet_targets_can_stop_the_run(tmp_path):
     block = {
         "name": "block",
