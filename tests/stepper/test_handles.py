@@ -415,7 +415,9 @@ def test_a_handle_held_blocked_step_after_step_keeps_its_gap_and_resumes_the_sam
     assert all(r["newton_iterations"] <= 10 for r in held)
     assert min(r["min_distance"] for r in held) > 100 * first["min_distance"]
     simulate(beam_scene([tip], steps=3, extra_objects=[block]), tmp_path / "split", progress=False)
-    resumed = simulate(beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "split", progress=False, resume=True)
+    resumed = simulate(
+        beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "split", progress=False, resume=True
+    )
     assert [r["dirichlet"]["held_blocked"] for r in resumed.step_records[3:]] == [True] * 3
     np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
 
