@@ -377,14 +377,20 @@ def test_slow_newton_without_contact_is_not_taken_for_a_stall():
     assert bc.after_iterate(x, True, lambda x, P: 0.0)[1] and bc.doublings == 1
 
 
-def test_handle_pushed_into_an_obstacle_keeps_injectivity_and_reports_the_residual(tmp_path):
+def tip_into_block(*, steps: int, quota: int = 1, **top) -> dict:
+    """The beam's tip pulled 0.3 up by a handle (reached by its quota, then unchanged) into a box obstacle over it,
+    which blocks it 0.23 short."""
     block = {
         "name": "block",
         "kind": "obstacle",
         "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
     }
-    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 2}}
-    s = beam_scene([tip], steps=3, extra_objects=[block])
+    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": quota}}
+    return beam_scene([tip], steps=steps, extra_objects=[block], **top)
+
+
+def test_handle_pushed_into_an_obstacle_keeps_injectivity_and_reports_the_residual(tmp_path):
+    s = tip_into_block(steps=3, quota=2)
     res = simulate(s, tmp_path, progress=False)
     recs = certified(res)
     last = recs[-1]["dirichlet"]
@@ -401,35 +407,21 @@ def test_a_handle_held_blocked_step_after_step_keeps_its_gap_and_resumes_the_sam
     held where step 1 left it, so the steps are short and the gap the penalty had pressed to ~1e-9 opens again
     (measured before the rule: steps 2–6 took 32–38 iterations each, the gap back at 1.7e-9 every other step).
     A run resumed between held steps gives the uninterrupted run's positions."""
-    block = {
-        "name": "block",
-        "kind": "obstacle",
-        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
-    }
-    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
-    whole = simulate(beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "whole", progress=False)
+    whole = simulate(tip_into_block(steps=6), tmp_path / "whole", progress=False)
     recs = certified(whole)
     first, held = recs[0], recs[1:]
     assert first["dirichlet"]["blocked"] and not first["dirichlet"]["held_blocked"]
     assert all(r["dirichlet"]["held_blocked"] and not r["dirichlet"]["met"] for r in held)
     assert all(r["newton_iterations"] <= 10 for r in held)
     assert min(r["min_distance"] for r in held) > 100 * first["min_distance"]
-    simulate(beam_scene([tip], steps=3, extra_objects=[block]), tmp_path / "split", progress=False)
-    resumed = simulate(
-        beam_scene([tip], steps=6, extra_objects=[block]), tmp_path / "split", progress=False, resume=True
-    )
+    simulate(tip_into_block(steps=3), tmp_path / "split", progress=False)
+    resumed = simulate(tip_into_block(steps=6), tmp_path / "split", progress=False, resume=True)
     assert [r["dirichlet"]["held_blocked"] for r in resumed.step_records[3:]] == [True] * 3
     np.testing.assert_allclose(resumed.x, whole.x, rtol=0, atol=1e-10)
 
 
 def test_unmet_targets_can_stop_the_run(tmp_path):
-    block = {
-        "name": "block",
-        "kind": "obstacle",
-        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
-    }
-    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
-    s = beam_scene([tip], steps=3, extra_objects=[block], dirichlet={"on_unmet": "error"})
+    s = tip_into_block(steps=3, dirichlet={"on_unmet": "error"})
     from idp.errors import SolverError
 
     with pytest.raises(SolverError, match="Dirichlet targets unmet"):
@@ -825,13 +817,7 @@ def test_a_decrement_within_tol_that_did_not_end_the_solve_is_explained(tmp_path
     handles were still being pulled (κ_B doubled): the record and the warning say why it did not converge."""
     import logging
 
-    block = {
-        "name": "block",
-        "kind": "obstacle",
-        "generate": {"shape": "box_surface", "lo": [0.3, 0.12, -0.2], "hi": [0.7, 0.4, 0.2], "resolution": 2},
-    }
-    tip = {"name": "tip", "select": RIGHT, "motion": {"type": "targets", "offset": [0.0, 0.3, 0.0], "quota": 1}}
-    free_run = simulate(beam_scene([tip], steps=1, extra_objects=[block]), tmp_path / "free", progress=False)
+    free_run = simulate(tip_into_block(steps=1), tmp_path / "free", progress=False)
     rec = free_run.step_records[0]
     assert rec["converged"] and not rec["dirichlet"]["met"]
     within = [i for i, d in enumerate(rec["decrements"][:-1]) if d <= 1e-2]
@@ -839,9 +825,7 @@ def test_a_decrement_within_tol_that_did_not_end_the_solve_is_explained(tmp_path
     cap = within[0] + 1
     with caplog.at_level(logging.WARNING, logger="idp"):
         capped = simulate(
-            beam_scene(
-                [tip], steps=1, extra_objects=[block], solver={"newton_tol": 1e-2, "max_newton_iterations": cap}
-            ),
+            tip_into_block(steps=1, solver={"newton_tol": 1e-2, "max_newton_iterations": cap}),
             tmp_path / "capped",
             progress=False,
         )
