@@ -36,20 +36,31 @@ def frame_files(run_dir: str | Path) -> dict[int, Path]:
     vtu = run / "vtu"
     if not vtu.is_dir():
         raise OutputError(f"{run}: no vtu/ folder of frames (a run writes it unless [output] vtu = false)")
-    found = {int(m.group(1)): vtu / name for name in sorted(p.name for p in vtu.iterdir()) if (m := _FRAME.match(name))}
+    found = {int(m.group(1)): vtu / p.name for p in vtu.iterdir() if (m := _FRAME.match(p.name))}
     if not found:
         raise OutputError(f"{vtu}: no frame_NNNNN.vtu files")
     return dict(sorted(found.items()))
 
 
-def parts_from_frame(path: str | Path, dim: int) -> tuple[list[Part], np.ndarray]:
-    """(parts, positions (n, dim)) of one VTU frame as idp writes them."""
+def _read_frame(path: str | Path):
     import meshio
 
     try:
-        mesh = meshio.read(path)
+        return meshio.read(path)
     except (Exception, SystemExit) as exc:  # meshio raises many kinds on a damaged file, or calls sys.exit
         raise OutputError(f"{path}: cannot be read as a VTU frame ({exc})") from exc
+
+
+def _cell_counts(mesh) -> list[tuple[str, int]]:
+    return [(block.type, len(block.data)) for block in mesh.cells]
+
+
+def parts_from_frame(path: str | Path, dim: int) -> tuple[list[Part], np.ndarray]:
+    """(parts, positions (n, dim)) of one VTU frame as idp writes them."""
+    return _parts(_read_frame(path), path, dim)
+
+
+def _parts(mesh, path: str | Path, dim: int) -> tuple[list[Part], np.ndarray]:
     x = np.asarray(mesh.points, dtype=np.float64)[:, :dim]
     fixed = np.asarray(mesh.point_data.get("fixed", np.zeros(len(x))), dtype=bool).reshape(-1)
     part_ids = mesh.cell_data.get("part_id")
@@ -109,19 +120,17 @@ def render_run(
             raise OutputError(f"unknown view(s) {unknown}: choose from {sorted(VIEWS)}")
         if dim != 3:
             raise OutputError("views apply to 3D runs only")
-    parts, _ = parts_from_frame(frames[chosen[0]], dim)
-    keep = [i for i, p in enumerate(parts) if not (hide_obstacles and p.kind == "obstacle")]
-    if not keep:
+    first = _read_frame(frames[chosen[0]])
+    parts, x0 = _parts(first, frames[chosen[0]], dim)  # the topology, from the first frame shown only
+    shown_parts = [p for p in parts if not (hide_obstacles and p.kind == "obstacle")]
+    if not shown_parts:
         raise OutputError(f"{run_dir}: nothing left to draw without the obstacles")
-    shown_parts = [parts[i] for i in keep]
-    xs = []
-    for k in chosen:
-        other, x = parts_from_frame(frames[k], dim)
-        shapes = [p.surface.shape for p in other]
-        same = shapes == [p.surface.shape for p in parts]
-        if not same:
-            raise OutputError(f"{frames[k]}: its parts differ from step {chosen[0]}'s (a remesh between them?)")
-        xs.append((k, x))
+    xs = [(chosen[0], x0)]
+    for k in chosen[1:]:
+        mesh = first if k == chosen[0] else _read_frame(frames[k])
+        if len(mesh.points) != len(first.points) or _cell_counts(mesh) != _cell_counts(first):
+            raise OutputError(f"{frames[k]}: its mesh differs from step {chosen[0]}'s (a remesh between them?)")
+        xs.append((k, np.asarray(mesh.points, dtype=np.float64)[:, :dim]))
     out = Path(out_png)
     if views:
         k, x = xs[-1]
