@@ -1,10 +1,14 @@
-"""Hostile sizes: inputs that claim or hold far more than they should are refused quickly, with bounded memory.
+"""Hostile sizes: inputs that claim or hold far more than they should are refused, with bounded memory and time.
 
 Each case runs in a fresh Python process (``python -c HARNESS``) that imports idp, then caps its own address space
 with ``resource.setrlimit(RLIMIT_AS)`` at its size after the imports plus ``BUDGET_MB``, and reports the outcome,
 the wall time and the peak resident memory over the start (``ru_maxrss``). The parent gives it ``TIMEOUT_S``.
 A reader that tried to hold a claimed 10^12 points, or split a 50 MB line into millions of tokens, hits the cap:
-a ``MemoryError`` that escapes as a traceback (non-zero exit) fails the test, and so does a hang (timeout).
+a ``MemoryError`` that escapes as a traceback (non-zero exit) fails the test, and so does a hang (timeout). No case
+asserts a wall-clock bound tighter than that timeout (speed is measured by benchmarks, not asserted by tests; a
+fixed 10 s bound per refusal was dropped): a reader that did the claimed work without holding its memory would run
+far past it, and the one case where only the growth of the time tells (duplicate handle names, quadratic before)
+compares two sizes.
 
 How the OBJ bound is guaranteed: both OBJ readers read the file in 64 KiB chunks through
 ``idp.mesh.obj.read_lines``, which refuses a line as soon as more than ``MAX_LINE`` (1 MiB) of it has been read.
@@ -26,8 +30,7 @@ import numpy as np
 import pytest
 
 BUDGET_MB = 400  # address space a case may add to the process after the imports
-TIMEOUT_S = 60  # per case (each takes well under a few seconds when refused as it should be)
-QUICK_S = 10.0  # what "quickly" means for one refusal, on a loaded 2-core machine
+TIMEOUT_S = 60  # per case: a hang (each takes well under a few seconds when refused as it should be)
 LINE_MB = 50
 
 HARNESS = r"""
@@ -61,8 +64,8 @@ print(json.dumps({"outcome": outcome, "message": message[:400], "seconds": secon
 """
 
 
-def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB, quick_s: float | None = QUICK_S) -> dict:
-    """One case in its own process; ``quick_s``: the wall time it must stay under (None: judged by the caller)."""
+def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB) -> dict:
+    """One case in its own process (memory capped, ``TIMEOUT_S`` for a hang); returns its report."""
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.run(
         [sys.executable, "-c", HARNESS, reader, str(path), str(budget_mb)],
@@ -73,12 +76,11 @@ def run_case(reader: str, path: Path, budget_mb: int = BUDGET_MB, quick_s: float
     )
     assert proc.returncode == 0, f"{reader} {path.name}: exit {proc.returncode}\n{proc.stderr[-3000:]}"
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert quick_s is None or result["seconds"] < quick_s, result
     return result
 
 
-def refused(reader: str, path: Path, match: str = "", quick_s: float | None = QUICK_S) -> dict:
-    result = run_case(reader, path, quick_s=quick_s)
+def refused(reader: str, path: Path, match: str = "") -> dict:
+    result = run_case(reader, path)
     assert result["outcome"] == "IdpError", result
     assert match in result["message"], result
     return result
@@ -185,7 +187,7 @@ def test_scene_1e5_handles(tmp_path):
         handles.append(dict(handles[7]))
         p = tmp_path / f"s{n}.json"
         p.write_text(json.dumps({"objects": [{"name": "o", "generate": {"shape": "ball"}, "handles": handles}]}))
-        seconds[n] = refused("scene", p, match="duplicate handle name 'h7'", quick_s=None)["seconds"]
+        seconds[n] = refused("scene", p, match="duplicate handle name 'h7'")["seconds"]
     assert seconds[10**5] < 30.0 * seconds[10**4], seconds
 
 
