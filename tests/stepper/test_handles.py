@@ -488,7 +488,7 @@ def test_fast_kinematic_obstacle_does_not_tunnel(tmp_path):
     assert plate[:, 1].max() - plate[:, 1].min() == pytest.approx(0.05, rel=1e-9)  # moved rigidly
 
 
-def press_ball_onto_floor(tmp_path, *, speed, steps, poisson_ratio, solver):
+def press_ball_onto_floor(tmp_path, *, speed, steps, poisson_ratio, solver, dirichlet=None):
     """A rigid plate moving down ``speed`` per unit time onto a ball resting on a floor (all generated); returns
     the run's result and its certified step records."""
     ball = {
@@ -514,6 +514,7 @@ def press_ball_onto_floor(tmp_path, *, speed, steps, poisson_ratio, solver):
         "contact": {"dhat": 1e-3},
         "output": {"obj": False, "vtu": False, "png": False},
         "objects": [ball, floor, plate],
+        **({"dirichlet": dirichlet} if dirichlet else {}),
     }
     res = simulate(scene_from_dict(d), tmp_path, progress=False)
     return res, certified(res)
@@ -534,6 +535,31 @@ def test_a_kinematic_press_squeezes_a_ball_onto_a_floor(tmp_path):
     assert plate_y.max() - plate_y.min() == pytest.approx(0.08, abs=1e-9)
     assert ball_y.min() > 0.0 and ball_y.max() < plate_y.min()  # squeezed between them, touching neither
     assert plate_y.min() - ball_y.max() < 1e-3 and ball_y.min() < 1e-3  # in contact with both (within d̂)
+
+
+def test_the_authors_rule_lets_a_pressing_tool_stop_99_percent_of_the_way(tmp_path):
+    # met_rule = "total_progress" (Fig. 22's vase): a tool pressing a ball onto a floor counts as there once it has
+    # come 99 % of its step's move, and is held there, rigid, instead of being pressed on until within the
+    # tolerance. Every iterate is checked (check_every_iterate) and every frame certified.
+    steps, speed = 4, 1.5
+    move = speed * 0.04  # the plate's move per step (dt = 0.04)
+    res, recs = press_ball_onto_floor(
+        tmp_path, speed=speed, steps=steps, poisson_ratio=0.4, solver={}, dirichlet={"met_rule": "total_progress"}
+    )
+    assert all(r["dirichlet"]["met"] and not r["dirichlet"]["blocked"] for r in recs)
+    assert min(r["min_distance"] for r in recs) > 1e-5
+    short = [r["dirichlet"]["residual_max"] for r in recs]
+    assert max(short) > 0.0  # the rule, not the per-vertex tolerance, ended some step
+    assert max(short) <= 0.01 * move  # at least 99 % of the way (the plate's vertices lag alike)
+    by_name = {p.name: p for p in res.parts}
+    plate_y = res.x[by_name["plate"].vertex_ids][:, 1]
+    assert plate_y.max() - plate_y.min() == pytest.approx(0.08, abs=1e-9)  # rigid
+    # its targets are absolute (start + v t): the plate ends short of the last one by that step's shortfall only
+    assert plate_y.min() - (0.62 - steps * move) == pytest.approx(short[-1], rel=1e-6)
+    # the default rule presses on until the plate is on its targets, in more Newton iterations
+    _, recs_e = press_ball_onto_floor(tmp_path / "each", speed=speed, steps=steps, poisson_ratio=0.4, solver={})
+    assert all(r["dirichlet"]["met"] and r["dirichlet"]["residual_max"] == 0.0 for r in recs_e)
+    assert sum(r["newton_iterations"] for r in recs) <= sum(r["newton_iterations"] for r in recs_e)
 
 
 def test_a_fast_kinematic_press_with_contact_look_ahead_is_not_blocked(tmp_path):
