@@ -432,6 +432,7 @@ class ContactModel:
             self.num_dynamic_collision_vertices,
             None if every_pair else (self._still if still is None else still),
             None if every_pair else self._prescribed,
+            co_moving=v1 is not None,  # a falling or carried bundle's sweep: only its own deformation counts
         )
         if self._excluded_fv.size or self._excluded_ee.size:
             fv, ee = self._filter_excluded(fv, ee, v0.shape[0])

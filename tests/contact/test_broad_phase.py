@@ -278,6 +278,78 @@ def test_split_into_long_and_short_primitives_gives_the_unsplit_set(name):
             assert _query(V, V1, E, F, infl, nd, reach) == whole, (name, infl, reach)
 
 
+def _carried(V, nd, seed, step=(0.05, -0.3, 0.02)):
+    """End positions of a sweep that carries the dynamic vertices a long common step (a body falling or pushed as a
+    whole, far longer than a cell) plus a small jitter of their own."""
+    rng = np.random.default_rng(seed)
+    dyn = np.arange(len(V))[:, None] < nd
+    return V + np.where(dyn, np.asarray(step) + 3e-3 * rng.standard_normal(V.shape), 0.0)
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_co_moving_frame_keeps_every_pair_that_comes_near(name):
+    """In the frame moving with the median displacement the query reports exactly the brute-force pairs of that
+    frame's boxes (V1 - c; static vertices then move by -c), and every pair that comes within the inflation at a
+    sampled time of the real sweep is among them. Also for a sweep of the moving vertices alone (the static cage
+    then carries the median), and a query with still vertices."""
+    V, E, F, nd = SCENES[name]()
+    E, F = np.ascontiguousarray(E, dtype=np.int32), np.ascontiguousarray(F, dtype=np.int32)
+    V1 = _carried(V, nd, 10)
+    c = np.median(V1 - V, axis=0)
+    for infl in (1e-3, 2e-2):
+        got = _as_sets(*surface_candidates(V, V1, E, F, infl, nd, co_moving=True))
+        shifted = brute_force(V, V1 - c, E, F, infl, nd)
+        wide = brute_force(V, V1 - c, E, F, infl, nd, _scale_pad(V, V1, infl), moving=False)
+        assert shifted[0] <= got[0] <= wide[0] and shifted[1] <= got[1] <= wide[1], (name, infl)
+        met = 0
+        for t in np.linspace(0.0, 1.0, 11):
+            Vt = (1 - t) * V + t * V1
+            near_fv, near_ee = brute_force(Vt, None, E, F, infl, nd)
+            for f, v in near_fv:
+                if ipctk.point_triangle_distance(Vt[v], *Vt[F[f]]) < infl**2:
+                    assert (f, v) in got[0], (name, infl, t, f, v)
+                    met += 1
+            for a, b in near_ee:
+                if ipctk.edge_edge_distance(*Vt[E[a]], *Vt[E[b]]) < infl**2:
+                    assert (a, b) in got[1], (name, infl, t, a, b)
+                    met += 1
+        assert met > 0
+    # still vertices (half the dynamic ones held) are left out of pairs among themselves in both frames
+    still = np.zeros(len(V), dtype=bool)
+    still[: nd // 2] = True
+    V1s = np.where(still[:, None], V, V1)
+    for co in (False, True):
+        fv, ee = _as_sets(*surface_candidates(V, V1s, E, F, 2e-2, nd, still, co_moving=co))
+        moving = ~still & (np.arange(len(V)) < nd)
+        assert all(moving[F[f]].any() or moving[v] for f, v in fv)
+        assert all(moving[E[a]].any() or moving[E[b]].any() for a, b in ee)
+
+
+def test_co_moving_frame_is_the_plain_query_when_nothing_moves_together():
+    """A median displacement of zero (most vertices held) leaves the query exactly as it was: same pair lists."""
+    V, E, F, nd = ball_in_big_triangles()
+    V1 = V.copy()
+    V1[:5] += 0.1  # a few vertices moved, the median step is zero
+    a = surface_candidates(V, V1, E, F, 1e-2, nd)
+    b = surface_candidates(V, V1, E, F, 1e-2, nd, co_moving=True)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_co_moving_frame_sees_a_rigid_carry_as_standing_still():
+    """Two boxes carried together by one long translation, 3 x their size: seen from the moving frame they stand
+    still, so the query reports the pairs of the static query at the start (up to its few-ulp margin) and not the
+    swept boxes' pairs between primitives that only travel side by side."""
+    V, E, F, nd = two_boxes(gap=1e-3)
+    V1 = V + np.array([0.0, 0.7, 3.0])
+    infl = 2e-3
+    co = _as_sets(*surface_candidates(V, V1, E, F, infl, nd, co_moving=True))
+    still = brute_force(V, None, E, F, infl, nd)
+    wide = brute_force(V, None, E, F, infl + 1e-12, nd)
+    assert still[0] <= co[0] <= wide[0] and still[1] <= co[1] <= wide[1]
+    swept = brute_force(V, V1, E, F, infl, nd, moving=False)
+    assert len(swept[0]) + len(swept[1]) > 10 * (len(co[0]) + len(co[1]))
+
+
 def test_large_inflation_overflows_the_first_pass():
     """Far more pairs than cell entries: the exact second pass must still give the brute-force set."""
     V, E, F, nd = triangle_soup(seed=4)
