@@ -187,6 +187,25 @@ def _as_sets(fv, ee):
     return sfv, see
 
 
+def _near_pairs_reported(V0, V1, E, F, infl, nd, got, label) -> int:
+    """Asserts that every pair closer than ``infl`` at 11 sampled times of the sweep V0 -> V1 is in ``got`` (fv, ee
+    sets); returns how many such pairs there were."""
+    fv, ee = got
+    met = 0
+    for t in np.linspace(0.0, 1.0, 11):
+        Vt = (1 - t) * V0 + t * V1
+        near_fv, near_ee = brute_force(Vt, None, E, F, infl, nd)  # box-test superset; distances below
+        for f, v in near_fv:
+            if ipctk.point_triangle_distance(Vt[v], *Vt[F[f]]) < infl**2:
+                assert (f, v) in fv, (label, t, f, v)
+                met += 1
+        for a, b in near_ee:
+            if ipctk.edge_edge_distance(*Vt[E[a]], *Vt[E[b]]) < infl**2:
+                assert (a, b) in ee, (label, t, a, b)
+                met += 1
+    return met
+
+
 # ----------------------------------------------------------------------------- tests
 
 
@@ -225,19 +244,7 @@ def test_long_sweep_drops_pairs_that_never_meet_and_keeps_those_that_do(name):
     swept_fv, swept_ee = brute_force(V, V1, E, F, infl, nd, moving=False)
     assert fv <= swept_fv and ee <= swept_ee
     assert len(fv) + len(ee) < len(swept_fv) + len(swept_ee)
-    met = 0
-    for t in np.linspace(0.0, 1.0, 11):
-        Vt = (1 - t) * V + t * V1
-        near_fv, near_ee = brute_force(Vt, None, E, F, infl, nd)  # box-test superset; distances below
-        for f, v in near_fv:
-            if ipctk.point_triangle_distance(Vt[v], *Vt[F[f]]) < infl**2:
-                assert (f, v) in fv, (name, t, f, v)
-                met += 1
-        for a, b in near_ee:
-            if ipctk.edge_edge_distance(*Vt[E[a]], *Vt[E[b]]) < infl**2:
-                assert (a, b) in ee, (name, t, a, b)
-                met += 1
-    assert met > 0
+    assert _near_pairs_reported(V, V1, E, F, infl, nd, (fv, ee), name) > 0
 
 
 def _query(V0, V1, E, F, infl, nd, long_reach):
@@ -301,19 +308,7 @@ def test_co_moving_frame_keeps_every_pair_that_comes_near(name):
         shifted = brute_force(V, V1 - c, E, F, infl, nd)
         wide = brute_force(V, V1 - c, E, F, infl, nd, _scale_pad(V, V1, infl), moving=False)
         assert shifted[0] <= got[0] <= wide[0] and shifted[1] <= got[1] <= wide[1], (name, infl)
-        met = 0
-        for t in np.linspace(0.0, 1.0, 11):
-            Vt = (1 - t) * V + t * V1
-            near_fv, near_ee = brute_force(Vt, None, E, F, infl, nd)
-            for f, v in near_fv:
-                if ipctk.point_triangle_distance(Vt[v], *Vt[F[f]]) < infl**2:
-                    assert (f, v) in got[0], (name, infl, t, f, v)
-                    met += 1
-            for a, b in near_ee:
-                if ipctk.edge_edge_distance(*Vt[E[a]], *Vt[E[b]]) < infl**2:
-                    assert (a, b) in got[1], (name, infl, t, a, b)
-                    met += 1
-        assert met > 0
+        assert _near_pairs_reported(V, V1, E, F, infl, nd, got, (name, infl)) > 0
     # still vertices (half the dynamic ones held) are left out of pairs among themselves in both frames
     still = np.zeros(len(V), dtype=bool)
     still[: nd // 2] = True
